@@ -1,0 +1,17 @@
+"""Builds the CGAL Delaunay extension; everything else is in pyproject.toml."""
+from pybind11.setup_helpers import Pybind11Extension, build_ext
+from setuptools import setup
+
+setup(
+    ext_modules=[
+        Pybind11Extension(
+            "voro3d._cgal",
+            ["src/voro3d_cgal.cpp"],
+            cxx_std=17,
+            define_macros=[("NDEBUG", None), ("CGAL_DISABLE_ROUNDING_MATH_CHECK", None)],
+            extra_compile_args=["-O3"],
+            libraries=["gmp", "mpfr"],
+        )
+    ],
+    cmdclass={"build_ext": build_ext},
+)

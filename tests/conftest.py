@@ -1,0 +1,26 @@
+from pathlib import Path
+
+import pytest
+
+DEV_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--slow", action="store_true", default=False,
+                     help="run the long property-test budget (10,000 extraction cases)")
+
+
+def pytest_configure(config):
+    from hypothesis import HealthCheck, settings
+
+    common = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    settings.register_profile("ci", max_examples=100, **common)
+    settings.register_profile("slow", max_examples=2500, **common)
+    settings.load_profile("slow" if config.getoption("--slow") else "ci")
+
+
+@pytest.fixture
+def dev_meshes():
+    if not DEV_DATA.is_dir():
+        pytest.skip(f"dev meshes not found at {DEV_DATA}")
+    return DEV_DATA

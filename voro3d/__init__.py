@@ -1,0 +1,27 @@
+"""voro3d: watertight, self-intersection-free surface meshes with VoroMesh.
+
+Public names are imported lazily so that ``import voro3d`` (and ``voro3d --help``) stays
+instant and inference never loads torch.
+"""
+from importlib import import_module
+
+__version__ = "0.1.0"
+
+_PUBLIC = {
+    "VoroMesh": "extract",
+    "extract_mesh": "extract",
+    "check_watertight": "watertight",
+    "WatertightReport": "watertight",
+}
+
+__all__ = sorted(_PUBLIC)
+
+
+def __getattr__(name):
+    if name in _PUBLIC:
+        return getattr(import_module(f".{name and _PUBLIC[name]}", __name__), name)
+    raise AttributeError(f"module 'voro3d' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_PUBLIC))

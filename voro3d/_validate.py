@@ -1,0 +1,50 @@
+"""One place that checks arrays at the public boundary and names what is wrong."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def as_points(value, name: str, *, min_count: int = 1, dtype=np.float64) -> np.ndarray:
+    """Return ``value`` as a finite ``(n, 3)`` array of ``dtype``.
+
+    Raises
+    ------
+    ValueError
+        If ``value`` is not numeric, the shape is not ``(n, 3)``, fewer than ``min_count`` rows arrive,
+        or any coordinate is NaN or infinite.
+    """
+    array = np.asarray(value)
+    if array.dtype == object or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"{name} must be a numeric array, got dtype {array.dtype}")
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
+    if array.shape[0] < min_count:
+        raise ValueError(f"{name} must hold at least {min_count} points, got {array.shape[0]}")
+    array = np.ascontiguousarray(array, dtype=dtype)
+    bad = ~np.isfinite(array).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{name} holds {int(bad.sum())} rows with NaN or inf (first at row {int(np.flatnonzero(bad)[0])})")
+    return array
+
+
+def as_mask(value, name: str, length: int) -> np.ndarray:
+    """Return ``value`` as a ``(length,)`` bool array; 0/1 integers are accepted."""
+    array = np.asarray(value)
+    if array.ndim != 1 or array.shape[0] != length:
+        raise ValueError(f"{name} must have shape ({length},), got {array.shape}")
+    if array.dtype == bool:
+        return array
+    if np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating):
+        if not np.isin(array, (0, 1)).all():
+            raise ValueError(f"{name} must be boolean (or 0/1), got values outside {{0, 1}}")
+        return array.astype(bool)
+    raise ValueError(f"{name} must be a boolean array, got dtype {array.dtype}")
+
+
+def positive_int(value, name: str, *, minimum: int = 1) -> int:
+    """Return ``value`` as an int ``>= minimum``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    return int(value)
