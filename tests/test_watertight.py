@@ -1,0 +1,95 @@
+"""Watertightness checks catch each kind of defect, and only that."""
+import numpy as np
+import open3d as o3d
+import pytest
+
+from voro3d.intersect import confirm_intersections
+from voro3d.topology import split_nonmanifold
+from voro3d.watertight import assert_closed_manifold, check_watertight, signed_volume
+
+# A unit tetrahedron with outward normals.
+TET_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+
+def test_closed_tetrahedron_passes():
+    report = check_watertight((TET_V, TET_F))
+    assert report.watertight and report.volume == pytest.approx(1 / 6)
+    assert report.self_intersecting_pairs == 0 and report.touching_pairs == 0
+
+
+def test_open_mesh_fails_closed():
+    report = check_watertight((TET_V, TET_F[:3]))
+    assert not report.closed and not report.watertight
+
+
+def test_flipped_triangle_fails_orientation():
+    faces = TET_F.copy()
+    faces[0] = faces[0, ::-1]
+    report = check_watertight((TET_V, faces))
+    assert report.closed and not report.consistently_oriented and not report.watertight
+
+
+def test_inward_normals_fail_volume():
+    report = check_watertight((TET_V, TET_F[:, ::-1]))
+    assert report.volume < 0 and not report.watertight
+
+
+def test_non_manifold_edge_and_vertex():
+    # Two tetrahedra sharing one edge: the edge has four triangles.
+    other = TET_V * [-1, -1, 1]
+    vertices = np.vstack([TET_V, other[[1, 2]]])
+    faces = np.vstack([TET_F, [[0, 4, 5], [0, 3, 4], [0, 5, 3], [4, 3, 5]]])
+    report = check_watertight((vertices, faces))
+    assert not report.edge_manifold and not report.watertight
+    # Two tetrahedra sharing only a vertex: edges fine, vertex not.
+    vertices = np.vstack([TET_V, -TET_V[1:]])
+    faces = np.vstack([TET_F, [[0, 4, 5], [0, 6, 4], [0, 5, 6], [4, 6, 5]]])
+    report = check_watertight((vertices, faces))
+    assert report.closed and report.edge_manifold and not report.vertex_manifold
+
+
+def test_split_nonmanifold_separates_sheets_that_share_a_vertex():
+    vertices = np.vstack([TET_V, -TET_V[1:]])
+    faces = np.vstack([TET_F, [[0, 4, 5], [0, 6, 4], [0, 5, 6], [4, 6, 5]]])
+    new_vertices, new_faces = split_nonmanifold(vertices, faces)
+    report = check_watertight((new_vertices, new_faces))
+    assert report.watertight and len(new_vertices) == 8 and report.touching_pairs > 0
+
+
+def test_crossing_triangles_are_found_exactly():
+    cube = o3d.geometry.TriangleMesh.create_box()
+    moved = o3d.geometry.TriangleMesh.create_box().translate((0.5, 0.5, 0.5))
+    both = cube + moved
+    report = check_watertight(both)
+    assert report.self_intersecting_pairs > 0 and not report.watertight
+    # Near-touching but separate triangles (10^-12 apart) are not confirmed.
+    a = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    b = a + [0, 0, 1e-12]
+    vertices = np.vstack([a, b])
+    assert len(confirm_intersections(vertices, np.array([[0, 1, 2], [3, 4, 5]]), np.array([[0, 1]]))) == 0
+    c = np.array([[0.2, 0.2, -1], [0.2, 0.2, 1], [2, 2, 0]], float)
+    vertices = np.vstack([a, c])
+    assert len(confirm_intersections(vertices, np.array([[0, 1, 2], [3, 4, 5]]), np.array([[0, 1]]))) == 1
+
+
+def test_assert_closed_manifold_names_the_failures():
+    with pytest.raises(RuntimeError, match="closed"):
+        assert_closed_manifold(TET_V, TET_F[:3])
+    with pytest.raises(RuntimeError, match="positive volume"):
+        assert_closed_manifold(TET_V, TET_F[:, ::-1])
+
+
+def test_signed_volume_is_translation_invariant():
+    assert signed_volume(TET_V + 1e6, TET_F) == pytest.approx(1 / 6, rel=1e-9)
+
+
+def test_check_accepts_tensor_meshes():
+    legacy = o3d.geometry.TriangleMesh.create_sphere()
+    report = check_watertight(o3d.t.geometry.TriangleMesh.from_legacy(legacy), self_intersection=False)
+    assert report.watertight and report.self_intersecting_pairs is None
+
+
+def test_bad_mesh_type():
+    with pytest.raises(TypeError, match="mesh must be"):
+        check_watertight("not a mesh")

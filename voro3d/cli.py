@@ -1,0 +1,145 @@
+"""The ``voro3d`` command: a thin layer over the library.
+
+Errors in the input become one line on stderr and exit status 2; outputs are written
+atomically, so a failed run leaves no file behind.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _extract(args) -> None:
+    from .extract import VoroMesh
+    from .io import save_mesh
+
+    mesh = VoroMesh.load(args.generators).to_open3d()
+    save_mesh(mesh, args.output)
+    _maybe_render(args, [mesh], ["VoroMesh"])
+    _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
+
+
+def _fit(args) -> None:
+    from .fit import fit
+    from .io import load_mesh, save_mesh
+
+    source = load_mesh(args.mesh)
+    shape = fit(source, grid=args.grid, steps=args.steps, seed=args.seed, device=args.device,
+                progress=not args.quiet)
+    mesh = shape.to_open3d()
+    save_mesh(mesh, args.output)
+    if args.save_generators:
+        shape.save(args.save_generators)
+    _maybe_render(args, [source, mesh], ["input", f"VoroMesh {args.grid}^3"])
+    _say(args, f"wrote {args.output} ({len(shape.generators)} generators, {len(mesh.triangles)} triangles)")
+
+
+def _eval(args) -> None:
+    from .io import load_mesh
+    from .metrics import evaluate
+    from .watertight import check_watertight
+
+    predicted = load_mesh(args.predicted, merge=False)
+    result = evaluate(predicted, load_mesh(args.ground_truth), n_points=args.n_points, seed=args.seed)
+    result["watertight"] = check_watertight(predicted, self_intersection=not args.no_self_intersection).as_dict()
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return
+    rows = [(k, v) for k, v in result.items() if not isinstance(v, dict)]
+    rows += [(f"watertight.{k}", v) for k, v in result["watertight"].items()]
+    width = max(len(k) for k, _ in rows)
+    for key, value in rows:
+        print(f"{key:<{width}}  {value:.6g}" if isinstance(value, float) else f"{key:<{width}}  {value}")
+
+
+def _render(args) -> None:
+    from .io import load_mesh
+    from .render import render_error_map, render_meshes
+
+    meshes = [load_mesh(path, merge=False) for path in args.meshes]
+    if args.error_against:
+        render_error_map(meshes[0], load_mesh(args.error_against), args.output)
+    else:
+        render_meshes(meshes, args.output, titles=args.titles or [Path(p).stem for p in args.meshes])
+    _say(args, f"wrote {args.output}")
+
+
+def _maybe_render(args, meshes, titles) -> None:
+    if getattr(args, "png", None):
+        from .render import render_meshes
+
+        render_meshes(meshes, args.png, titles=titles)
+
+
+def _say(args, message: str) -> None:
+    if not getattr(args, "quiet", False):
+        print(message, file=sys.stderr)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="voro3d", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=_version())
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    extract = commands.add_parser("extract", help="watertight mesh from saved generators + occupancy (.npz)")
+    extract.add_argument("generators", help=".npz with arrays 'generators' (n,3) and 'occupancy' (n,)")
+    extract.add_argument("-o", "--output", required=True, help="output mesh (.ply, .obj, .off, .stl)")
+    extract.add_argument("--png", help="also render a picture here")
+    extract.add_argument("-q", "--quiet", action="store_true")
+    extract.set_defaults(run=_extract)
+
+    fit = commands.add_parser("fit", help="fit a VoroMesh to a watertight mesh (direct optimisation)")
+    fit.add_argument("mesh", help="input mesh (.ply, .obj, .off, .stl)")
+    fit.add_argument("-o", "--output", required=True, help="output mesh")
+    fit.add_argument("--grid", type=int, default=32, help="grid resolution g (g^3 nodes), default 32")
+    fit.add_argument("--steps", type=int, default=400, help="Adam steps, default 400")
+    fit.add_argument("--seed", type=int, default=0)
+    fit.add_argument("--device", default="cpu", help="cpu or cuda")
+    fit.add_argument("--png", help="also render input and result side by side here")
+    fit.add_argument("--save-generators", help="also save generators + occupancy (.npz)")
+    fit.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
+    fit.set_defaults(run=_fit)
+
+    evaluate = commands.add_parser("eval", help="Chamfer, F1, normal consistency and watertightness")
+    evaluate.add_argument("predicted")
+    evaluate.add_argument("ground_truth")
+    evaluate.add_argument("--n-points", type=int, default=100_000)
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    evaluate.add_argument("--no-self-intersection", action="store_true",
+                          help="skip the triangle-pair intersection test (slow on big meshes)")
+    evaluate.set_defaults(run=_eval)
+
+    render = commands.add_parser("render", help="PNG of meshes side by side, or an error map")
+    render.add_argument("meshes", nargs="+")
+    render.add_argument("-o", "--output", required=True, help="output .png")
+    render.add_argument("--titles", nargs="*")
+    render.add_argument("--error-against", help="colour the first mesh by its distance to this one")
+    render.add_argument("-q", "--quiet", action="store_true")
+    render.set_defaults(run=_render)
+    return parser
+
+
+def _version() -> str:
+    from . import __version__
+
+    return f"voro3d {__version__}"
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.run(args)
+    except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as error:
+        print(f"voro3d {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"voro3d {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
