@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Installs system libraries Open3D needs, a CPU build of torch, then voro3d into .venv.
+# Installs the system libraries Open3D and CGAL need, a CPU build of torch, then voro3d into .venv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON="${PYTHON:-python3}"
 
 need_apt=()
-for pkg in libusb-1.0-0 libvulkan1 mesa-vulkan-drivers libgl1 libegl1 libgomp1; do
+for pkg in libusb-1.0-0 libvulkan1 mesa-vulkan-drivers libgl1 libegl1 libgomp1 g++ libcgal-dev libgmp-dev libmpfr-dev; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done
 if [ ${#need_apt[@]} -gt 0 ] && command -v apt-get >/dev/null 2>&1; then
