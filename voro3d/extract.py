@@ -160,17 +160,13 @@ def _prepare_generators(points, inside, tolerance):
         # A power of two, so the snapped coordinates are exact multiples of it.
         quantum = float(2.0 ** np.floor(np.log2(tolerance * scale)))
         points = np.round(points / quantum) * quantum
-        pairs = cKDTree(points).query_pairs(tolerance * scale, output_type="ndarray")
-    else:
-        pairs = np.zeros((0, 2), np.int64)
+    # Pairs within the radius include exact duplicates (distance 0).
+    pairs = cKDTree(points).query_pairs(tolerance * scale, output_type="ndarray")
     n = points.shape[0]
-    _, label = np.unique(points, axis=0, return_inverse=True)
-    label = label.reshape(-1)
+    label = np.arange(n)
     if pairs.size:
-        rows = np.concatenate([pairs[:, 0], np.arange(n)])
-        cols = np.concatenate([pairs[:, 1], label + n])
-        graph = coo_matrix((np.ones(rows.size, np.int8), (rows, cols)), shape=(2 * n, 2 * n))
-        label = connected_components(graph, directed=False)[1][:n]
+        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        label = connected_components(graph, directed=False)[1]
     _, first, label = np.unique(label, return_index=True, return_inverse=True)
     merged_inside = np.bincount(label.reshape(-1), weights=inside.astype(float)) > 0
     return points[first], merged_inside, quantum
@@ -245,11 +241,16 @@ def _voronoi_vertices(points, tets, cospherical, tet_ids, triangles):
         graph = coo_matrix((np.ones(len(cospherical), np.int8), (cospherical[:, 0], cospherical[:, 1])),
                            shape=(n, n))
         label = connected_components(graph, directed=False)[1]
-    used, first = np.unique(label[tet_ids], return_index=True)
-    vertices = circumcenters(points, tets[tet_ids[first]])
+    # One tetrahedron per vertex (any: they share the circumsphere), found without sorting.
+    representative = np.full(n, -1, np.int64)
+    representative[label[tet_ids]] = tet_ids
+    used = np.flatnonzero(representative >= 0)
+    vertices = circumcenters(points, tets[representative[used]])
     vertex_of = np.full(n, -1, np.int64)
     vertex_of[used] = np.arange(used.size)
     triangles = vertex_of[label[triangles]]
     keep = (triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2]) & (triangles[:, 0] != triangles[:, 2])
-    merged = used.size < np.unique(tet_ids).size
+    is_mixed = np.zeros(n, bool)
+    is_mixed[tet_ids] = True
+    merged = used.size < np.count_nonzero(is_mixed)
     return vertices, triangles[keep], merged

@@ -44,7 +44,7 @@ def edge_groups(triangles: np.ndarray):
     return order, group, np.flatnonzero(is_start), (start < end)[order]
 
 
-def twins(vertices: np.ndarray, triangles: np.ndarray, *, separate: np.ndarray | None = None):
+def twins(vertices: np.ndarray, triangles: np.ndarray, *, separate: np.ndarray | None = None, groups=None):
     """Pair every half-edge with an opposite one.
 
     Edges shared by exactly two triangles pair them. Edges shared by ``2 k`` triangles (two
@@ -59,6 +59,8 @@ def twins(vertices: np.ndarray, triangles: np.ndarray, *, separate: np.ndarray |
         Consistently oriented, outward normals.
     separate : (e,) bool, optional
         Per undirected edge (ids of :func:`edge_groups`): pair across empty wedges.
+    groups : tuple, optional
+        The result of :func:`edge_groups` for ``triangles``, if already computed.
 
     Returns
     -------
@@ -66,7 +68,7 @@ def twins(vertices: np.ndarray, triangles: np.ndarray, *, separate: np.ndarray |
         The opposite half-edge; ``-1`` where none exists (open or inconsistently oriented).
     order, group, starts : see :func:`edge_groups`
     """
-    order, group, starts, forward = edge_groups(triangles)
+    order, group, starts, forward = edge_groups(triangles) if groups is None else groups
     counts = np.diff(np.append(starts, order.size))
     twin = np.full(order.size, -1, np.int64)
 

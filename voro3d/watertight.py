@@ -45,7 +45,8 @@ def signed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
 def _topology_flags(vertices, triangles):
     if triangles.size == 0:
         return False, False, False, False
-    order, group, starts, forward = edge_groups(triangles)
+    groups = edge_groups(triangles)
+    order, group, starts, forward = groups
     counts = np.diff(np.append(starts, order.size))
     closed = bool((counts == 2).all())
     edge_manifold = bool((counts <= 2).all())
@@ -53,7 +54,7 @@ def _topology_flags(vertices, triangles):
     consistent = bool((forward_count * 2 == counts).all())
     vertex_manifold = False
     if closed and consistent:
-        twin, *_ = twins(vertices, triangles)
+        twin, *_ = twins(vertices, triangles, groups=groups)
         n_umbrellas, _ = umbrellas(triangles, twin)
         vertex_manifold = n_umbrellas == np.unique(triangles).size
     return closed, edge_manifold, vertex_manifold, consistent
@@ -150,5 +151,17 @@ def to_open3d(vertices: np.ndarray, triangles: np.ndarray, *, normals: bool = Tr
         o3d.utility.Vector3iVector(np.ascontiguousarray(triangles, np.int32)),
     )
     if normals:
-        mesh.compute_vertex_normals()
+        # Area-weighted, as Open3D's compute_vertex_normals, which takes 0.7 s at 2e5 triangles here.
+        mesh.vertex_normals = o3d.utility.Vector3dVector(vertex_normals(vertices, triangles))
     return mesh
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals, (n, 3) float64."""
+    a = vertices[triangles[:, 0]]
+    face = np.cross(vertices[triangles[:, 1]] - a, vertices[triangles[:, 2]] - a)
+    corners = triangles.reshape(-1)
+    n = vertices.shape[0]
+    summed = np.stack([np.bincount(corners, weights=np.repeat(face[:, d], 3), minlength=n) for d in range(3)], axis=1)
+    length = np.linalg.norm(summed, axis=1, keepdims=True)
+    return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
