@@ -41,7 +41,7 @@ def _eval(args) -> None:
     from .metrics import evaluate
     from .watertight import check_watertight
 
-    predicted = load_mesh(args.predicted, merge=False)
+    predicted = load_mesh(args.predicted, weld=False)
     result = evaluate(predicted, load_mesh(args.ground_truth), n_points=args.n_points, seed=args.seed)
     result["watertight"] = check_watertight(predicted, self_intersection=not args.no_self_intersection).as_dict()
     if args.json:
@@ -58,7 +58,7 @@ def _render(args) -> None:
     from .io import load_mesh
     from .render import render_error_map, render_meshes
 
-    meshes = [load_mesh(path, merge=False) for path in args.meshes]
+    meshes = [load_mesh(path, weld=False) for path in args.meshes]
     if args.error_against:
         render_error_map(meshes[0], load_mesh(args.error_against), args.output)
     else:
