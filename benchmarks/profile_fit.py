@@ -1,0 +1,205 @@
+"""Where :func:`voro3d.fit.fit` spends its time, and what the candidate-search policy costs in quality.
+
+Three tables:
+
+* ``phases``: for each mesh and grid, wall-clock seconds of sampling, initial generators (with
+  the first kNN search), the optimisation loop, cell occupancy, and (outside the fit) mesh
+  extraction; the fit's CPU seconds (all threads), which a loaded machine inflates less; the
+  number of generators and kNN searches; the final VoroLoss; CD and F1 of the extracted mesh
+  (:func:`voro3d.metrics.evaluate`, paper conventions).
+* ``steps``: one mesh per grid, the loop's steps timed part by part (batch window, nearest-pair
+  search, loss forward+backward, Adam+schedule+clamp+displacement check, kNN searches).
+* ``refresh`` (``--refresh-study``): the fit redone with the candidates searched again every step
+  (``REFRESH_VOXELS = 0``, the exact loss) and at other thresholds; the final loss is recomputed
+  exactly (fresh kNN search) so the policies are compared on equal terms.
+
+Timings are taken on whatever machine runs this; on a shared machine they vary from run to run,
+so the load average at start and end is recorded with them.
+Writes ``<out>/profile_fit.{md,json}``.
+
+    python benchmarks/profile_fit.py [--meshes sphere organic_bunny.off] [--grids 32 64]
+        [--steps-mesh organic_bunny.off] [--refresh-study] [--out out/profile_fit]
+"""
+from __future__ import annotations
+
+import argparse
+import bisect
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import torch
+
+from voro3d import fit as fit_module
+from voro3d.extract import extract_mesh
+from voro3d.generators import initial_generators
+from voro3d.io import fit_frame, load_mesh, mesh_arrays
+from voro3d.loss import bisector_distance, bisector_pairs, voroloss
+from voro3d.metrics import evaluate
+from voro3d.sampling import sample_surface
+from voro3d.watertight import check_watertight
+
+ROOT = Path(__file__).resolve().parents[1]
+DEV = ROOT.parent / "shared" / "data" / "dev"
+
+
+def load(name):
+    import open3d as o3d
+
+    if name == "sphere":
+        return o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=120)
+    if name == "torus":
+        return o3d.geometry.TriangleMesh.create_torus(torus_radius=1.0, tube_radius=0.4, radial_resolution=160,
+                                                      tubular_resolution=80)
+    path = Path(name) if Path(name).is_file() else DEV / name
+    return load_mesh(path)
+
+
+def phase_row(name, mesh, grid, steps):
+    cpu = time.process_time()
+    voromesh, info = fit_module.fit_with_info(mesh, grid, steps=steps, progress=False)
+    cpu = time.process_time() - cpu
+    start = time.perf_counter()
+    surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+    extract_seconds = time.perf_counter() - start
+    metrics = evaluate(surface, mesh)
+    return {
+        "mesh": name, "grid": grid, "n_samples": info.n_samples, "n_generators": info.n_generators,
+        "searches": info.candidate_searches, "sampling_s": info.sampling_seconds, "init_s": info.init_seconds,
+        "optimisation_s": info.optimisation_seconds, "occupancy_s": info.occupancy_seconds,
+        "fit_total_s": info.total_seconds, "fit_cpu_s": cpu, "extract_s": extract_seconds,
+        "final_loss": info.final_loss,
+        "watertight": check_watertight(surface, self_intersection=False).watertight,
+        "cd_x1e5": metrics["chamfer_x1e5"], "f1": metrics["f1"],
+    }
+
+
+def step_row(name, mesh, grid, steps):
+    """The loop of ``_FitLoop.run``, each part timed (a copy of it, so the fit itself carries no timers)."""
+    vertices, triangles = mesh_arrays(mesh)
+    frame = fit_frame((vertices, triangles))
+    samples, _ = sample_surface((frame.apply(vertices), triangles), fit_module.SAMPLES_PER_FACE * grid**2, seed=0)
+    loop = fit_module._FitLoop(samples, initial_generators(samples, grid), grid=grid, k=11, batch_fraction=0.2,
+                               device=torch.device("cpu"))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    parts = dict.fromkeys(["window", "pairs", "loss_fwd_bwd", "adam_clamp_displacement", "search"], 0.0)
+    generators_t = loop.generators_t
+    optimizer = fit_module._Adam(generators_t)
+    offsets = torch.randint(loop.n_samples, (steps,), generator=torch.Generator().manual_seed(0)).tolist()
+    refresh = fit_module.REFRESH_VOXELS * 2.0 / (grid - 1)
+    searches = 0
+    try:
+        for step in range(steps):
+            generators_t.grad = None
+            for start in range(0, loop.batch, fit_module.PAIR_BLOCK):
+                t0 = time.perf_counter()
+                window = slice(offsets[step] + start, offsets[step] + min(start + fit_module.PAIR_BLOCK, loop.batch))
+                samples_t = loop.samples_t[:, window].contiguous()
+                t1 = time.perf_counter()
+                nearest, other = bisector_pairs(samples_t, generators_t.detach(), loop.candidates_t[:, window])
+                t2 = time.perf_counter()
+                loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / loop.batch
+                loss.backward()
+                t3 = time.perf_counter()
+                parts["window"] += t1 - t0
+                parts["pairs"] += t2 - t1
+                parts["loss_fwd_bwd"] += t3 - t2
+            t3 = time.perf_counter()
+            with torch.no_grad():
+                optimizer.step(0.005 * 0.5 ** bisect.bisect_right([80, 120, 200, 250], step))
+                generators_t.clamp_(-1.0, 1.0)
+                moved = (generators_t - loop.searched_at).square_().sum(0).amax()
+            search = bool(moved > refresh**2) and step + 1 < steps
+            t4 = time.perf_counter()
+            if search:
+                loop._search()
+                searches += 1
+            t5 = time.perf_counter()
+            parts["adam_clamp_displacement"] += t4 - t3
+            parts["search"] += t5 - t4
+    finally:
+        torch.set_num_threads(threads)
+    total = sum(parts.values())
+    row = {"mesh": name, "grid": grid, "batch": loop.batch, "steps": steps, "searches_in_loop": searches,
+           "loop_s": total, "ms_per_step_without_search": 1e3 * (total - parts["search"]) / steps}
+    row.update({f"{part}_s": seconds for part, seconds in parts.items()})
+    return row
+
+
+def refresh_rows(name, mesh, grid, steps, thresholds):
+    vertices, triangles = mesh_arrays(mesh)
+    frame = fit_frame((vertices, triangles))
+    samples, _ = sample_surface((frame.apply(vertices), triangles), fit_module.SAMPLES_PER_FACE * grid**2, seed=0)
+    rows = []
+    default = fit_module.REFRESH_VOXELS
+    try:
+        for threshold in thresholds:
+            fit_module.REFRESH_VOXELS = threshold
+            voromesh, info = fit_module.fit_with_info(mesh, grid, steps=steps, progress=False)
+            surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+            metrics = evaluate(surface, mesh)
+            exact = float(voroloss(samples, torch.tensor(frame.apply(voromesh.generators))))
+            rows.append({"mesh": name, "grid": grid, "refresh_voxels": threshold, "searches": info.candidate_searches,
+                         "fit_total_s": info.total_seconds, "loss_with_fit_candidates": info.final_loss,
+                         "exact_final_loss": exact, "cd_x1e5": metrics["chamfer_x1e5"], "f1": metrics["f1"]})
+            print(rows[-1], flush=True)
+    finally:
+        fit_module.REFRESH_VOXELS = default
+    return rows
+
+
+def markdown(title, rows):
+    if not rows:
+        return ""
+    keys = list(rows[0])
+    lines = [f"## {title}", "", "| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for row in rows:
+        cells = [f"{row[key]:.4g}" if isinstance(row[key], float) else str(row[key]) for key in keys]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--meshes", nargs="+", default=["sphere", "organic_bunny.off", "cad_fandisk.obj",
+                                                        "thingi32_44234.obj"])
+    parser.add_argument("--grids", nargs="*", type=int, default=[32, 64], help="grids of the phase and step tables")
+    parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--steps-mesh", default="organic_bunny.off", help="mesh of the per-step table")
+    parser.add_argument("--refresh-study", action="store_true")
+    parser.add_argument("--refresh-grids", nargs="+", type=int, default=[32, 64])
+    parser.add_argument("--refresh-thresholds", nargs="+", type=float, default=[0.0, 0.5, 1.0, 2.0, float("inf")])
+    parser.add_argument("--out", type=Path, default=ROOT / "out" / "profile_fit")
+    args = parser.parse_args()
+
+    result = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "torch": torch.__version__,
+                          "load_average_at_start": os.getloadavg()},
+              "phases": [], "steps": [], "refresh": []}
+    meshes = {name: load(name) for name in dict.fromkeys(args.meshes + [args.steps_mesh])}
+    for grid in args.grids:
+        for name in args.meshes:
+            result["phases"].append(phase_row(name, meshes[name], grid, args.steps))
+            print(result["phases"][-1], flush=True)
+        result["steps"].append(step_row(args.steps_mesh, meshes[args.steps_mesh], grid, args.steps))
+        print(result["steps"][-1], flush=True)
+    if args.refresh_study:
+        for grid in args.refresh_grids:
+            for name in args.meshes:
+                result["refresh"] += refresh_rows(name, meshes[name], grid, args.steps, args.refresh_thresholds)
+    result["machine"]["load_average_at_end"] = os.getloadavg()
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "profile_fit.json").write_text(json.dumps(result, indent=1, default=float))
+    text = "# VoroMesh fit profile\n\n" + f"Machine: {json.dumps(result['machine'])}\n\n"
+    text += "\n".join(markdown(title, result[key]) for key, title in
+                      (("phases", "Phases (wall-clock seconds)"), ("steps", "Loop parts (wall-clock seconds)"),
+                       ("refresh", "Candidate-search threshold vs quality")))
+    (args.out / "profile_fit.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

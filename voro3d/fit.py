@@ -1,0 +1,326 @@
+"""Direct optimisation of a VoroMesh to one input mesh (the paper's Section 4 fitting).
+
+Pipeline: fit frame -> surface samples -> initial generators (grid band) -> Adam on VoroLoss ->
+occupancy of every cell from an inside test -> generators mapped back to the input's units.
+"""
+from __future__ import annotations
+
+import bisect
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ._validate import positive_int
+from .extract import VoroMesh
+from .generators import initial_generators
+from .io import fit_frame, mesh_arrays
+from .loss import DEFAULT_K, PAIR_BLOCK, bisector_distance, bisector_pairs, nearest_indices
+from .occupancy import label_cells
+from .sampling import InsideOutside, sample_surface
+
+# Surface samples per grid face, n_samples = SAMPLES_PER_FACE * grid**2 (official code).
+SAMPLES_PER_FACE = 150
+
+# The kNN candidates of every sample are searched once and searched again only after some
+# generator has moved this many voxels since the last search (4-5 searches at grid 32, 5-9 at 64,
+# 10 at 128). Between searches the nearest generator and the nearest bisector are re-ranked among
+# the candidates at every step, so the loss stays exact while the candidates still hold them.
+# Against a search at every step (benchmarks/profile_fit.py --refresh-study, bunny, fandisk and
+# thingi32 44234 at 32, bunny at 64) the final loss is within 3% and CD and F1 within 1%; with
+# no second search the final loss is 1.4-6.4 times higher and CD 3-8% worse.
+REFRESH_VOXELS = 1.0
+
+
+@dataclass(frozen=True)
+class FitInfo:
+    """What :func:`fit_with_info` did and where the time went.
+
+    Attributes
+    ----------
+    n_samples : int
+        Surface samples.
+    n_generators : int
+        Generators optimised (the grid band around the samples).
+    final_loss : float
+        VoroLoss of all samples at the final generators, in fit-frame units squared (the fit
+        frame has bounding-box diagonal 2), searched among the candidates of the last kNN search.
+    losses : (steps,) float64
+        Loss of each step's batch, before the step.
+    candidate_searches : int
+        kNN candidate searches over all samples, the first one included.
+    sampling_seconds, init_seconds, optimisation_seconds, occupancy_seconds, total_seconds : float
+        Wall-clock time of: surface sampling (and setting up the inside test); initial
+        generators and the first candidate search;
+        the optimisation loop (later searches included); cell occupancy; all of :func:`fit_with_info`.
+    """
+
+    n_samples: int
+    n_generators: int
+    final_loss: float
+    losses: np.ndarray
+    candidate_searches: int
+    sampling_seconds: float
+    init_seconds: float
+    optimisation_seconds: float
+    occupancy_seconds: float
+    total_seconds: float
+
+
+def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
+        milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
+        k: int = DEFAULT_K, n_samples: int | None = None, seed: int = 0, device: str = "cpu",
+        allow_open: bool = False, progress: bool = True) -> VoroMesh:
+    """Fit a VoroMesh to a triangle mesh by minimising VoroLoss.
+
+    The same fit as :func:`fit_with_info`, which documents the parameters, without the report.
+
+    Returns
+    -------
+    VoroMesh
+        Generators ``(n, 3) float64`` in the input mesh's units, with their occupancy.
+    """
+    return fit_with_info(mesh, grid, steps=steps, lr=lr, milestones=milestones, gamma=gamma,
+                         batch_fraction=batch_fraction, k=k, n_samples=n_samples, seed=seed,
+                         device=device, allow_open=allow_open, progress=progress)[0]
+
+
+def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
+                  milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
+                  k: int = DEFAULT_K, n_samples: int | None = None, seed: int = 0,
+                  device: str = "cpu", allow_open: bool = False,
+                  progress: bool = True) -> tuple[VoroMesh, FitInfo]:
+    """Fit a VoroMesh to a triangle mesh, and report how the fit went.
+
+    The mesh is mapped to the fit frame (:func:`voro3d.io.fit_frame`: bounding box centred,
+    diagonal 2), sampled (``n_samples`` area-uniform points), and the generators start at the
+    corners of the grid voxels holding samples (:func:`voro3d.generators.initial_generators`).
+    Adam then minimises VoroLoss (:func:`voro3d.loss.voroloss`) on a random ``batch_fraction``
+    of the samples per step, with the learning rate times ``gamma`` at each milestone; generators
+    are clamped to ``[-1, 1]^3`` after each step, as in the official code. Finally each cell is
+    labelled inside or outside at a point inside it (:func:`voro3d.occupancy.label_cells`).
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
+        Closed (unless ``allow_open``), in any units.
+    grid : int
+        Nodes per axis of the initial grid over ``[-1, 1]^3``, ``>= 2`` (the paper uses 32-128).
+    steps : int
+        Adam steps (official: 400).
+    lr : float
+        Initial learning rate, in fit-frame units (official: 0.005).
+    milestones : sequence of int
+        Steps at which the learning rate is multiplied by ``gamma``. The paper's are the default;
+        the official code uses ``(80, 150, 200, 250)``.
+    gamma : float
+        Learning-rate factor at each milestone, in ``(0, 1]``.
+    batch_fraction : float
+        Share of the samples used per step, in ``(0, 1]`` (official: 0.2).
+    k : int
+        kNN candidates per sample, ``>= 2`` (see :data:`voro3d.loss.DEFAULT_K`).
+    n_samples : int, optional
+        Surface samples; default ``150 * grid**2`` (official).
+    seed : int
+        Seeds the samples and the batches: the same seed gives bitwise-identical generators on CPU.
+    device : str
+        ``"cpu"`` or ``"cuda"`` (or ``"cuda:N"``) for the optimisation loop.
+    allow_open : bool
+        Accept a mesh with boundary edges; inside is then decided by winding number
+        (see :class:`voro3d.sampling.InsideOutside`).
+    progress : bool
+        Show a tqdm progress bar over the steps.
+
+    Returns
+    -------
+    voromesh : VoroMesh
+        Generators ``(n, 3) float64`` in the input mesh's units, with their occupancy.
+    info : FitInfo
+
+    Raises
+    ------
+    ValueError
+        A bad argument (named in the message), a mesh that is open without ``allow_open``,
+        or ``device`` asking for CUDA when none is available.
+
+    Notes
+    -----
+    The loop works in float32 and, for speed, differs from the official code in three ways that
+    leave the result unchanged (``benchmarks/profile_fit.py`` measures it): each step's batch is
+    a window of consecutive samples at a random offset (the samples are i.i.d., so a window is a
+    random batch, and a slice instead of a gather); the kNN candidates are searched again only
+    after a generator has moved ``REFRESH_VOXELS`` voxels, the nearest generator and bisector
+    being re-ranked among them at every step; the loss gradient is written by hand.
+
+    On CPU the loop runs torch on one thread, restoring the caller's setting afterwards: its
+    tensors are small enough that OpenMP's per-operation fork and join cost more than a second
+    thread gains (on a loaded machine, many times more), and one thread makes runs bitwise
+    reproducible. The kNN searches use every core.
+    """
+    start = time.perf_counter()
+    grid = positive_int(grid, "grid", minimum=2)
+    steps = positive_int(steps, "steps")
+    k = positive_int(k, "k", minimum=2)
+    if not (np.isfinite(lr) and lr > 0):
+        raise ValueError(f"lr must be a finite number > 0, got {lr}")
+    if not 0 < gamma <= 1:
+        raise ValueError(f"gamma must be in (0, 1], got {gamma}")
+    if not 0 < batch_fraction <= 1:
+        raise ValueError(f"batch_fraction must be in (0, 1], got {batch_fraction}")
+    milestones = sorted(positive_int(step, "milestones") for step in milestones)
+    n_samples = SAMPLES_PER_FACE * grid**2 if n_samples is None else positive_int(n_samples, "n_samples")
+    torch_device = _device(device)
+
+    vertices, triangles = mesh_arrays(mesh)
+    frame = fit_frame((vertices, triangles))
+    shape = (frame.apply(vertices), triangles)
+    inside = InsideOutside(shape, allow_open=allow_open)  # fails early on an open mesh
+    samples, _ = sample_surface(shape, n_samples, seed=seed)
+    sampled = time.perf_counter()
+
+    generators = initial_generators(samples, grid)
+    loop = _FitLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, device=torch_device)
+    initialised = time.perf_counter()
+
+    threads = torch.get_num_threads()
+    if torch_device.type == "cpu":
+        torch.set_num_threads(1)
+    try:
+        losses = loop.run(steps, lr=lr, milestones=milestones, gamma=gamma, seed=seed,
+                          refresh_distance=REFRESH_VOXELS * 2.0 / (grid - 1), progress=progress)
+        final_loss = loop.loss()
+    finally:
+        torch.set_num_threads(threads)
+    generators = loop.generators()
+    optimised = time.perf_counter()
+
+    occupancy = label_cells(generators, inside.occupancy)
+    result = VoroMesh(frame.invert(generators), occupancy)
+    done = time.perf_counter()
+    info = FitInfo(
+        n_samples=n_samples, n_generators=generators.shape[0], final_loss=final_loss, losses=losses,
+        candidate_searches=loop.searches, sampling_seconds=sampled - start,
+        init_seconds=initialised - sampled, optimisation_seconds=optimised - initialised,
+        occupancy_seconds=done - optimised, total_seconds=done - start,
+    )
+    return result, info
+
+
+def _device(device) -> torch.device:
+    try:
+        torch_device = torch.device(device)
+    except (RuntimeError, TypeError) as error:
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}") from error
+    if torch_device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r} was asked for but CUDA is not available")
+    if torch_device.type not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
+    return torch_device
+
+
+class _FitLoop:
+    """The optimisation state: samples, generators and their kNN candidates, coordinate-major.
+
+    Batches are windows of consecutive samples at a random offset: the samples are i.i.d. on
+    the surface, so a window is a random batch, and it is a slice instead of a gather (which
+    cost more than the loss itself). The first window's worth of samples is repeated at the end
+    so that every offset gives a full window and every sample is equally likely to be used.
+    """
+
+    def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int,
+                 batch_fraction: float, device: torch.device):
+        self.n_samples = samples.shape[0]
+        self.batch = max(1, int(round(batch_fraction * self.n_samples)))
+        wrapped = np.concatenate([samples, samples[: self.batch]])
+        self.samples_t = torch.tensor(wrapped.T, dtype=torch.float32, device=device).contiguous()
+        self.generators_t = torch.nn.Parameter(
+            torch.tensor(generators.T, dtype=torch.float32, device=device).contiguous())
+        self.k = min(k, generators.shape[0])
+        # KD-tree queries in spatial order run 1.5 times faster than in the samples' random
+        # order (the tree's nodes stay in cache); the samples never move, so sort them once.
+        voxel = np.floor((samples + 1.0) * (grid - 1) / 2.0).astype(np.int64)
+        order = np.argsort((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2], kind="stable")
+        self.search_samples = np.ascontiguousarray(samples[order], dtype=np.float32)
+        self.search_rank = torch.empty(order.size, dtype=torch.int64)
+        self.search_rank[torch.from_numpy(order)] = torch.arange(order.size)
+        self.searches = 0
+        self._search()
+
+    def _search(self):
+        """kNN candidates of every sample at the current generators."""
+        sites = self.generators_t.detach()
+        positions = np.ascontiguousarray(sites.t().cpu().numpy())
+        found = torch.from_numpy(nearest_indices(self.search_samples, positions, self.k))
+        # Back to the samples' order, coordinate-major, with the first window repeated at the end.
+        found = found.index_select(0, self.search_rank).t()
+        self.candidates_t = torch.cat([found, found[:, : self.batch]], dim=1).to(sites.device)
+        self.searched_at = sites.clone()
+        self.searches += 1
+
+    def run(self, steps, *, lr, milestones, gamma, seed, refresh_distance, progress) -> np.ndarray:
+        from tqdm.auto import tqdm
+
+        generators_t = self.generators_t
+        optimizer = _Adam(generators_t)
+        offsets = torch.randint(self.n_samples, (steps,), generator=torch.Generator().manual_seed(seed)).tolist()
+        losses = torch.empty(steps, dtype=torch.float32, device=generators_t.device)
+        for step in tqdm(range(steps), desc="VoroMesh fit", disable=not progress, leave=False):
+            generators_t.grad = None
+            loss = torch.zeros((), device=generators_t.device)
+            # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at
+            # a time: their temporaries then stay in cache instead of being allocated afresh.
+            for start in range(0, self.batch, PAIR_BLOCK):
+                window = slice(offsets[step] + start, offsets[step] + min(start + PAIR_BLOCK, self.batch))
+                samples_t = self.samples_t[:, window].contiguous()
+                nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
+                block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
+                block_loss.backward()
+                loss += block_loss.detach()
+            rate = lr * gamma ** bisect.bisect_right(milestones, step)
+            with torch.no_grad():
+                optimizer.step(rate)
+                generators_t.clamp_(-1.0, 1.0)
+                losses[step] = loss
+                moved = (generators_t - self.searched_at).square_().sum(0).amax()
+            if moved > refresh_distance**2 and step + 1 < steps:
+                self._search()
+        return losses.cpu().numpy().astype(np.float64)
+
+    def loss(self) -> float:
+        """VoroLoss over all samples with the current candidates."""
+        with torch.no_grad():
+            samples_t = self.samples_t[:, : self.n_samples]
+            sites = self.generators_t.detach()
+            nearest, other = bisector_pairs(samples_t, sites, self.candidates_t[:, : self.n_samples])
+            return float(bisector_distance(samples_t, sites, nearest, other).square().mean())
+
+    def generators(self) -> np.ndarray:
+        return self.generators_t.detach().t().cpu().numpy().astype(np.float64)
+
+
+class _Adam:
+    """``torch.optim.Adam``'s update with its defaults (betas 0.9 and 0.999, eps 1e-8), written out.
+
+    Creating a ``torch.optim`` optimiser imports ``torch._dynamo``, which took 3 to 10 seconds
+    on first use here: longer than a whole fit at grid 32.
+    """
+
+    BETA1, BETA2, EPS = 0.9, 0.999, 1e-8
+
+    def __init__(self, parameter: torch.Tensor):
+        self.parameter = parameter
+        self.mean = torch.zeros_like(parameter)
+        self.square = torch.zeros_like(parameter)
+        self.steps = 0
+
+    @torch.no_grad()
+    def step(self, lr: float) -> None:
+        self.steps += 1
+        grad = self.parameter.grad
+        self.mean.lerp_(grad, 1 - self.BETA1)
+        self.square.mul_(self.BETA2).addcmul_(grad, grad, value=1 - self.BETA2)
+        correction1 = 1 - self.BETA1**self.steps
+        correction2 = 1 - self.BETA2**self.steps
+        denominator = (self.square.sqrt() / correction2**0.5).add_(self.EPS)
+        self.parameter.addcdiv_(self.mean, denominator, value=-lr / correction1)
