@@ -8,10 +8,22 @@ from importlib import import_module
 __version__ = "0.1.0"
 
 _PUBLIC = {
+    "load_mesh": "io",
+    "save_mesh": "io",
+    "sample_surface": "sampling",
+    "initial_generators": "generators",
+    "voroloss": "loss",
+    "knn_candidates": "loss",
+    "fit": "fit",
+    "fit_with_info": "fit",
+    "FitInfo": "fit",
+    "label_cells": "occupancy",
     "VoroMesh": "extract",
     "extract_mesh": "extract",
     "check_watertight": "watertight",
     "WatertightReport": "watertight",
+    "evaluate": "metrics",
+    "render_meshes": "render",
 }
 
 __all__ = sorted(_PUBLIC)
@@ -19,7 +31,7 @@ __all__ = sorted(_PUBLIC)
 
 def __getattr__(name):
     if name in _PUBLIC:
-        return getattr(import_module(f".{name and _PUBLIC[name]}", __name__), name)
+        return getattr(import_module(f".{_PUBLIC[name]}", __name__), name)
     raise AttributeError(f"module 'voro3d' has no attribute {name!r}")
 
 

@@ -1,0 +1,68 @@
+"""The package surface: light import, every public name resolves, CLI errors are one line."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import voro3d
+from voro3d.cli import main
+
+
+@pytest.mark.parametrize("name", voro3d.__all__)
+def test_public_names_resolve(name):
+    assert getattr(voro3d, name) is not None
+
+
+def test_import_is_light():
+    code = "import sys, voro3d; heavy = {'torch', 'open3d', 'onnxruntime'} & set(sys.modules); print(sorted(heavy))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_cli_extract_roundtrip(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1, 1, (300, 3))
+    voro3d.VoroMesh(points, np.linalg.norm(points, axis=1) < 0.6).save(tmp_path / "g.npz")
+    assert main(["extract", str(tmp_path / "g.npz"), "-o", str(tmp_path / "out.ply"), "-q"]) == 0
+    mesh = voro3d.load_mesh(tmp_path / "out.ply", weld=False)
+    assert voro3d.check_watertight(mesh).watertight
+
+
+def test_cli_errors_are_one_line_and_leave_no_file(tmp_path, capsys):
+    assert main(["extract", str(tmp_path / "missing.npz"), "-o", str(tmp_path / "out.ply")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "missing.npz" in err
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, generators=np.zeros((3, 3)), occupancy=np.ones(3, bool))
+    assert main(["extract", str(bad), "-o", str(tmp_path / "out.ply")]) == 2
+    assert "at least 4 distinct" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz"]
+
+
+def test_cli_fit_bad_mesh(tmp_path, capsys):
+    corrupt = tmp_path / "corrupt.ply"
+    corrupt.write_bytes(b"ply\nformat garbage\n")
+    assert main(["fit", str(corrupt), "-o", str(tmp_path / "out.ply"), "-q"]) == 2
+    assert "could not be read" in capsys.readouterr().err
+    assert not (tmp_path / "out.ply").exists()
+
+
+def test_cli_fit_eval_render(tmp_path, capsys):
+    import json
+
+    from voro3d.shapes import example_mesh
+
+    voro3d.save_mesh(example_mesh("torus"), tmp_path / "torus.ply")
+    out, png, gens = tmp_path / "fit.ply", tmp_path / "fit.png", tmp_path / "g.npz"
+    assert main(["fit", str(tmp_path / "torus.ply"), "-o", str(out), "--grid", "16", "--steps", "60",
+                 "--png", str(png), "--save-generators", str(gens), "-q"]) == 0
+    assert out.is_file() and png.stat().st_size > 10_000 and gens.is_file()
+    capsys.readouterr()
+    assert main(["eval", str(out), str(tmp_path / "torus.ply"), "--json", "--n-points", "20000"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    # 20k samples put the F1 floor low (see test_metrics); CD is the meaningful bound here.
+    assert result["watertight"]["watertight"] and result["chamfer_x1e5"] < 10 and result["f1"] > 0.2
+    assert main(["render", str(out), str(tmp_path / "torus.ply"), "-o", str(tmp_path / "r.png"), "-q"]) == 0
+    assert main(["render", str(out), "--error-against", str(tmp_path / "torus.ply"),
+                 "-o", str(tmp_path / "e.png"), "-q"]) == 0
