@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ._validate import positive_int
+from ._validate import as_points, positive_int
 from .extract import VoroMesh
 from .generators import initial_generators
 from .io import fit_frame, mesh_arrays
@@ -160,6 +160,45 @@ def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
     """
     start = time.perf_counter()
     grid = positive_int(grid, "grid", minimum=2)
+    n_samples = SAMPLES_PER_FACE * grid**2 if n_samples is None else positive_int(n_samples, "n_samples")
+    _device(device)  # fail before the sampling, not after
+
+    vertices, triangles = mesh_arrays(mesh)
+    frame = fit_frame((vertices, triangles))
+    shape = (frame.apply(vertices), triangles)
+    inside = InsideOutside(shape, allow_open=allow_open)  # fails early on an open mesh
+    samples, _ = sample_surface(shape, n_samples, seed=seed)
+    return fit_samples(samples, inside.occupancy, grid, frame=frame, steps=steps, lr=lr, milestones=milestones,
+                       gamma=gamma, batch_fraction=batch_fraction, k=k, seed=seed, device=device,
+                       progress=progress, _started=start)
+
+
+def fit_samples(samples, inside, grid: int = 32, *, frame=None, steps: int = 400, lr: float = 0.005,
+                milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
+                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu", progress: bool = True,
+                _started: float | None = None) -> tuple[VoroMesh, FitInfo]:
+    """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit_with_info`.
+
+    Parameters
+    ----------
+    samples : (m, 3) float
+        Surface samples in the fit frame (inside ``[-1, 1]^3``).
+    inside : callable
+        Maps (q, 3) float64 fit-frame points to (q,) bool, True inside the shape (a mesh's
+        :class:`voro3d.sampling.InsideOutside`, a point cloud's winding number, ...).
+    grid, steps, lr, milestones, gamma, batch_fraction, k, seed, device, progress
+        As in :func:`fit_with_info`.
+    frame : voro3d.io.NormalizationFrame, optional
+        The generators are mapped back through ``frame.invert``; None keeps the fit frame.
+
+    Returns
+    -------
+    voromesh : VoroMesh
+    info : FitInfo
+    """
+    start = time.perf_counter() if _started is None else _started
+    sampled = time.perf_counter()
+    grid = positive_int(grid, "grid", minimum=2)
     steps = positive_int(steps, "steps")
     k = positive_int(k, "k", minimum=2)
     if not (np.isfinite(lr) and lr > 0):
@@ -168,16 +207,9 @@ def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
         raise ValueError(f"gamma must be in (0, 1], got {gamma}")
     if not 0 < batch_fraction <= 1:
         raise ValueError(f"batch_fraction must be in (0, 1], got {batch_fraction}")
+    samples = as_points(samples, "samples", min_count=4)
     milestones = sorted(positive_int(step, "milestones") for step in milestones)
-    n_samples = SAMPLES_PER_FACE * grid**2 if n_samples is None else positive_int(n_samples, "n_samples")
     torch_device = _device(device)
-
-    vertices, triangles = mesh_arrays(mesh)
-    frame = fit_frame((vertices, triangles))
-    shape = (frame.apply(vertices), triangles)
-    inside = InsideOutside(shape, allow_open=allow_open)  # fails early on an open mesh
-    samples, _ = sample_surface(shape, n_samples, seed=seed)
-    sampled = time.perf_counter()
 
     generators = initial_generators(samples, grid)
     loop = _FitLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, device=torch_device)
@@ -195,11 +227,11 @@ def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
     generators = loop.generators()
     optimised = time.perf_counter()
 
-    occupancy = label_cells(generators, inside.occupancy)
-    result = VoroMesh(frame.invert(generators), occupancy)
+    occupancy = label_cells(generators, inside)
+    result = VoroMesh(generators if frame is None else frame.invert(generators), occupancy)
     done = time.perf_counter()
     info = FitInfo(
-        n_samples=n_samples, n_generators=generators.shape[0], final_loss=final_loss, losses=losses,
+        n_samples=samples.shape[0], n_generators=generators.shape[0], final_loss=final_loss, losses=losses,
         candidate_searches=loop.searches, sampling_seconds=sampled - start,
         init_seconds=initialised - sampled, optimisation_seconds=optimised - initialised,
         occupancy_seconds=done - optimised, total_seconds=done - start,
