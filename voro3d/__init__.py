@@ -24,6 +24,8 @@ _PUBLIC = {
     "WatertightReport": "watertight",
     "evaluate": "metrics",
     "render_meshes": "render",
+    "reconstruct": "reconstruct",
+    "VoroMeshStage": "reconstruct",
 }
 
 __all__ = sorted(_PUBLIC)

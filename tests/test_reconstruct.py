@@ -1,0 +1,107 @@
+"""reconstruct(): point clouds and meshes in, watertight Open3D meshes out."""
+import numpy as np
+import open3d as o3d
+import pytest
+
+from voro3d.metrics import evaluate
+from voro3d.reconstruct import VoroMeshStage, estimate_normals, reconstruct
+from voro3d.sampling import point_winding_number, sample_surface
+from voro3d.shapes import example_mesh
+from voro3d.watertight import check_watertight
+
+FAST = dict(grid=16, steps=60)
+
+
+@pytest.fixture(scope="module")
+def torus_cloud():
+    mesh = example_mesh("torus")
+    points, normals = sample_surface(mesh, 8000, seed=0)
+    return mesh, points, normals
+
+
+def _cloud(points, normals=None):
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    if normals is not None:
+        cloud.normals = o3d.utility.Vector3dVector(normals)
+    return cloud
+
+
+def test_point_cloud_with_normals(torus_cloud):
+    mesh, points, normals = torus_cloud
+    out = reconstruct(_cloud(points, normals), **FAST)
+    assert check_watertight(out).watertight
+    assert evaluate(out, mesh, n_points=20000)["chamfer_x1e5"] < 20
+
+
+@pytest.mark.parametrize("form", ["numpy6", "numpy3", "tensor", "file"])
+def test_other_inputs(torus_cloud, form, tmp_path):
+    mesh, points, normals = torus_cloud
+    if form == "numpy6":
+        geometry = np.hstack([points, normals])
+    elif form == "numpy3":
+        geometry = points
+    elif form == "tensor":
+        geometry = o3d.t.geometry.PointCloud.from_legacy(_cloud(points, normals))
+    else:
+        geometry = tmp_path / "cloud.ply"
+        o3d.io.write_point_cloud(str(geometry), _cloud(points, normals))
+    out = reconstruct(geometry, **FAST)
+    assert check_watertight(out, self_intersection=False).watertight
+
+
+def test_mesh_input_and_stage(torus_cloud):
+    mesh, _, _ = torus_cloud
+    stage = VoroMeshStage(**FAST)
+    assert "grid=16" in repr(stage)
+    out = stage(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    assert check_watertight(out, self_intersection=False).watertight
+
+
+def test_estimated_normals_point_outward(torus_cloud):
+    _, points, normals = torus_cloud
+    estimated = estimate_normals(points)
+    agreement = np.einsum("ij,ij->i", estimated, normals)
+    assert (agreement > 0.9).mean() > 0.98
+
+
+def test_winding_number_inside_outside(torus_cloud):
+    mesh, points, normals = torus_cloud
+    queries = np.array([[0.0, 0.0, 0.0], [0.7, 0.0, 0.0], [0.0, 2.0, 0.0]])  # hole, tube, far
+    winding = point_winding_number(points, normals, queries)
+    assert winding[0] < 0.2 and winding[1] > 0.8 and winding[2] < 0.2
+
+
+@pytest.mark.parametrize("geometry, match", [
+    (np.zeros((0, 3)), "at least 100"),
+    (np.random.default_rng(0).random((50, 3)), "at least 100"),
+    (np.full((200, 3), np.nan), "NaN"),
+    (np.c_[np.random.default_rng(0).random((500, 2)), np.zeros(500)], "coplanar"),
+    (np.zeros((200, 2)), "shape"),
+])
+def test_bad_clouds(geometry, match):
+    with pytest.raises(ValueError, match=match):
+        reconstruct(geometry, **FAST)
+
+
+def test_bad_options(torus_cloud):
+    _, points, normals = torus_cloud
+    with pytest.raises(ValueError, match="method"):
+        reconstruct(points, method="poisson")
+    with pytest.raises(ValueError, match="points must have shape"):
+        reconstruct(np.hstack([points, normals])[:, :5])
+    with pytest.raises(ValueError, match="normals are zero"):
+        reconstruct(np.hstack([points, np.zeros_like(points)]), **FAST)
+    with pytest.raises(FileNotFoundError):
+        reconstruct("/nonexistent/cloud.ply")
+
+
+def test_example_pipeline_runs(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "pipeline.py"
+    done = subprocess.run([sys.executable, str(script), "--grid", "16", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "voromesh.ply").is_file() and (tmp_path / "voromesh.png").is_file()
