@@ -265,3 +265,17 @@ def test_frames_compare_by_value(sphere):
     assert fit_frame(sphere) == fit_frame(sphere)
     assert fit_frame(sphere) != ndc_frame(sphere)
     assert len({fit_frame(sphere), fit_frame(sphere)}) == 1
+
+
+def test_atomic_path_gives_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from voro3d.io import atomic_path
+
+    target = tmp_path / "file.txt"
+    with atomic_path(target) as tmp:
+        Path(tmp).write_text("x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~umask
