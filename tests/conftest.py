@@ -14,7 +14,7 @@ def pytest_configure(config):
     from hypothesis import HealthCheck, settings
 
     common = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-    settings.register_profile("ci", max_examples=100, **common)
+    settings.register_profile("ci", max_examples=150, **common)
     settings.register_profile("slow", max_examples=2500, **common)
     settings.load_profile("slow" if config.getoption("--slow") else "ci")
 
