@@ -147,18 +147,42 @@ def write_tables(rows, grids, out: Path):
     print(f"wrote {out.with_suffix('.md')}")
 
 
+PICTURED = ("organic_bunny.off", "cad_fandisk.obj", "organic_armadillo.obj", "cad_rocker-arm.obj")
+
+
 def picture(picture_dir: Path, rows, out_png: Path, count=3):
+    """One row per shape (input, VoroMesh, MC, DC at one camera), rows stacked into one PNG."""
+    import tempfile
+
+    from PIL import Image
+
     from voro3d.io import load_mesh
     from voro3d.render import render_meshes
 
-    ok = [r for r in rows if r["status"] == "ok" and all("chamfer_x1e5" in r[m] for m in METHODS)][:count]
-    meshes, titles = [], []
-    for r in ok:
-        for method in METHODS:
-            meshes.append(load_mesh(picture_dir / f"{Path(r['shape']).stem}_{r['grid']}_{method}.ply", weld=False))
-            titles.append(f"{Path(r['shape']).stem} {method} {r['grid']}: CD {r[method]['chamfer_x1e5']:.2f}")
-    if meshes:
-        render_meshes(meshes, out_png, titles=titles, size=(360, 300))
+    ok = [r for r in rows if r["status"] == "ok" and all("chamfer_x1e5" in r[m] for m in METHODS)]
+    ok = sorted(ok, key=lambda r: (r["shape"] not in PICTURED, r["grid"]))[:count]
+    with tempfile.TemporaryDirectory() as folder:
+        images = []
+        for index, r in enumerate(ok):
+            stem = Path(r["shape"]).stem
+            source = Path(rows_folder(r)) / r["shape"]
+            meshes = [load_mesh(source)] + [
+                load_mesh(picture_dir / f"{stem}_{r['grid']}_{m}.ply", weld=False) for m in METHODS]
+            titles = [f"{stem} (input)"] + [f"{m} {r['grid']}^3: CD {r[m]['chamfer_x1e5']:.2f}" for m in METHODS]
+            path = Path(folder) / f"{index}.png"
+            render_meshes(meshes, path, titles=titles, size=(360, 300))
+            images.append(Image.open(path).convert("RGB"))
+        if images:
+            sheet = Image.new("RGB", (max(i.width for i in images), sum(i.height for i in images)), "white")
+            top = 0
+            for image in images:
+                sheet.paste(image, (0, top))
+                top += image.height
+            sheet.save(out_png)
+
+
+def rows_folder(row) -> Path:
+    return Path(row.get("folder", DEV))
 
 
 def main():
