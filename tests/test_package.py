@@ -66,3 +66,19 @@ def test_cli_fit_eval_render(tmp_path, capsys):
     assert main(["render", str(out), str(tmp_path / "torus.ply"), "-o", str(tmp_path / "r.png"), "-q"]) == 0
     assert main(["render", str(out), "--error-against", str(tmp_path / "torus.ply"),
                  "-o", str(tmp_path / "e.png"), "-q"]) == 0
+
+
+def test_cli_predict_from_mesh_and_sdf(tmp_path, capsys):
+    from voro3d.io import fit_frame
+    from voro3d.sampling import sdf_grid
+    from voro3d.shapes import example_mesh
+
+    source = example_mesh("bracket")
+    voro3d.save_mesh(source, tmp_path / "bracket.ply")
+    assert main(["predict", str(tmp_path / "bracket.ply"), "-o", str(tmp_path / "a.ply"), "-q"]) == 0
+    assert voro3d.check_watertight(voro3d.load_mesh(tmp_path / "a.ply", weld=False)).watertight
+    np.save(tmp_path / "sdf.npy", sdf_grid(fit_frame(source).apply_mesh(source), 32))
+    assert main(["predict", str(tmp_path / "sdf.npy"), "-o", str(tmp_path / "b.ply"), "-q"]) == 0
+    np.save(tmp_path / "bad.npy", np.zeros((32, 32, 31), np.float32))
+    assert main(["predict", str(tmp_path / "bad.npy"), "-o", str(tmp_path / "c.ply")]) == 2
+    assert "sdf" in capsys.readouterr().err.lower() and not (tmp_path / "c.ply").exists()

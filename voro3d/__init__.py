@@ -24,6 +24,9 @@ _PUBLIC = {
     "WatertightReport": "watertight",
     "evaluate": "metrics",
     "render_meshes": "render",
+    "predict": "infer",
+    "predict_mesh": "infer",
+    "Predictor": "infer",
     "reconstruct": "reconstruct",
     "VoroMeshStage": "reconstruct",
 }

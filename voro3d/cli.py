@@ -36,6 +36,51 @@ def _fit(args) -> None:
     _say(args, f"wrote {args.output} ({len(shape.generators)} generators, {len(mesh.triangles)} triangles)")
 
 
+def _predict(args) -> None:
+    from .infer import Predictor
+    from .io import save_mesh
+
+    predictor = Predictor(args.model)
+    source = Path(args.input)
+    if source.suffix.lower() in (".npy", ".npz"):
+        shape = predictor.predict(_load_sdf(source), fallback=not args.no_fallback)
+        reference = None
+    else:
+        from .io import load_mesh
+
+        reference = load_mesh(source)
+        shape = predictor.predict_mesh(reference, args.grid, fallback=not args.no_fallback)
+    mesh = shape.to_open3d()
+    save_mesh(mesh, args.output)
+    panels = [mesh] if reference is None else [reference, mesh]
+    _maybe_render(args, panels, ["learned VoroMesh"] if reference is None else ["input", "learned VoroMesh"])
+    _say(args, f"wrote {args.output} ({len(shape.generators)} generators, {len(mesh.triangles)} triangles)")
+
+
+def _load_sdf(path: Path):
+    import numpy as np
+
+    if path.suffix.lower() == ".npy":
+        return np.load(path, allow_pickle=False)
+    with np.load(path, allow_pickle=False) as data:
+        if "sdf" not in data.files:
+            raise ValueError(f"{path} has no array named 'sdf' (it holds {sorted(data.files)})")
+        return data["sdf"]
+
+
+def _train(args) -> None:
+    from .learn.train import train_main
+
+    _say(args, f"checkpoints in {train_main(args.config)}")
+
+
+def _export(args) -> None:
+    from .learn.export import export_onnx
+
+    report = export_onnx(args.checkpoint, args.output)
+    print(report)
+
+
 def _eval(args) -> None:
     from .io import load_mesh
     from .metrics import evaluate
@@ -101,6 +146,27 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--save-generators", help="also save generators + occupancy (.npz)")
     fit.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
     fit.set_defaults(run=_fit)
+
+    predict = commands.add_parser("predict", help="learned VoroMesh from an SDF grid or a mesh (ONNX, no torch)")
+    predict.add_argument("input", help="SDF grid (.npy, or .npz with array 'sdf'; (g,g,g), negative inside, "
+                                       "nodes spanning [-1,1]^3) or a mesh")
+    predict.add_argument("-o", "--output", required=True, help="output mesh")
+    predict.add_argument("--grid", type=int, default=32, help="SDF resolution when INPUT is a mesh, default 32")
+    predict.add_argument("--model", help="ONNX model (default: the shipped models/voromesh_sdf.onnx)")
+    predict.add_argument("--no-fallback", action="store_true", help="trust the network's occupancy everywhere")
+    predict.add_argument("--png", help="also render a picture here")
+    predict.add_argument("-q", "--quiet", action="store_true")
+    predict.set_defaults(run=_predict)
+
+    train = commands.add_parser("train", help="train the SDF -> generators network (needs torch)")
+    train.add_argument("--config", required=True, help="JSON config, e.g. models/voromesh_sdf.json")
+    train.add_argument("-q", "--quiet", action="store_true")
+    train.set_defaults(run=_train)
+
+    export = commands.add_parser("export-onnx", help="export a training checkpoint to ONNX, checked against torch")
+    export.add_argument("checkpoint")
+    export.add_argument("-o", "--output", required=True, help="output .onnx")
+    export.set_defaults(run=_export)
 
     evaluate = commands.add_parser("eval", help="Chamfer, F1, normal consistency and watertightness")
     evaluate.add_argument("predicted")

@@ -1,0 +1,163 @@
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from voro3d.infer import NEAR, Predictor, network_input, sdf_at  # noqa: E402
+from voro3d.learn.data import ShapeSet, build_dataset, cad_shape  # noqa: E402
+from voro3d.learn.export import TOLERANCE, check_grids, export_onnx  # noqa: E402
+from voro3d.learn.model import VoroNet, load_checkpoint  # noqa: E402
+from voro3d.learn.train import augment, load_config, shape_loss, train_main  # noqa: E402
+from voro3d.sampling import InsideOutside, grid_nodes  # noqa: E402
+
+GRID = 16
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """Three training shapes, two validation shapes at 16^3, two stage-1 epochs and one stage-2 epoch."""
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("learn")
+    config = {
+        "run_dir": str(root / "run"),
+        "data": {"train_dir": str(root / "train"), "val_dir": str(root / "val"), "n_train": 3, "n_val": 2,
+                 "grids": [GRID], "n_samples": 4000},
+        "stage1": {"epochs": 2, "batch_size": 2, "samples_per_shape": 2000, "grid_weights": [1.0]},
+        "stage2": {"epochs": 1, "n_shapes": 3, "nodes_per_shape": 400, "batch_size": 256},
+        "validation": {"n_detail": 1, "cd_points": 2000},
+    }
+    path = root / "tiny.json"
+    path.write_text(json.dumps(config))
+    return root, path, train_main(path)
+
+
+def test_cad_shape_is_deterministic_and_closed():
+    vertices, triangles = cad_shape(3)
+    again, _ = cad_shape(3)
+    np.testing.assert_array_equal(vertices, again)
+    other, _ = cad_shape(4)
+    assert other.shape != vertices.shape or not np.array_equal(other, vertices)
+    InsideOutside((vertices, triangles))  # raises on an open mesh
+
+
+def test_dataset_arrays_and_cache_spec(tiny_run):
+    root, _, _ = tiny_run
+    shapes = ShapeSet(sorted((root / "train").glob("shape_*.npz")))
+    assert len(shapes) == 3
+    shape = shapes[0]
+    assert shape[f"sdf_{GRID}"].shape == (GRID,) * 3 and shape[f"sdf_{GRID}"].dtype == np.float32
+    assert shape["samples"].shape == (4000, 3)
+    # The mesh is in the fit frame: bounding-box diagonal 2, centred.
+    low, high = shape["vertices"].min(axis=0), shape["vertices"].max(axis=0)
+    assert np.linalg.norm(high - low) == pytest.approx(2.0)
+    np.testing.assert_allclose((low + high) / 2, 0, atol=1e-12)
+    with pytest.raises(ValueError, match="built with"):
+        build_dataset(root / "train", 3, GRID, 0, n_samples=4000)
+
+
+def test_loss_decreases_on_one_shape(tiny_run):
+    root, _, _ = tiny_run
+    shape = ShapeSet([root / "train" / "shape_00000.npz"])[0]
+    torch.manual_seed(0)
+    model = VoroNet()
+    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(25):
+        optimizer.zero_grad()
+        loss, _ = shape_loss(model, shape[f"sdf_{GRID}"], shape["samples"], near=NEAR, reg_weight=2e-3)
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert np.mean(losses[-5:]) < 0.8 * losses[0]
+
+
+def test_train_main_writes_outputs_and_resumes(tiny_run):
+    root, path, final = tiny_run
+    run = root / "run"
+    for name in ("final.pt", "last.pt", "history.json", "loss_curve.png"):
+        assert (run / name).is_file(), name
+    history = json.loads((run / "history.json").read_text())
+    assert [h["stage"] for h in history] == [1, 1, 2]
+    for key in ("train_loss", f"val_voroloss_{GRID}", f"val_occupancy_accuracy_{GRID}", f"val_chamfer_x1e5_{GRID}",
+                f"val_mc_chamfer_x1e5_{GRID}"):
+        assert np.isfinite(history[-1][key]), key
+    _, state = load_checkpoint(final)
+    assert state["training"]["threads"] == 1
+    # A finished run resumes to nothing more to do and keeps its history.
+    assert train_main(path) == final
+    assert len(json.loads((run / "history.json").read_text())) == 3
+
+
+def test_training_is_deterministic(tiny_run, tmp_path):
+    root, path, final = tiny_run
+    config = json.loads(path.read_text())
+    config["run_dir"] = str(tmp_path / "again")
+    again = tmp_path / "again.json"
+    again.write_text(json.dumps(config))
+    first, second = load_checkpoint(final)[0].state_dict(), load_checkpoint(train_main(again))[0].state_dict()
+    for name in first:
+        torch.testing.assert_close(first[name], second[name], rtol=0, atol=0, msg=name)
+
+
+def test_export_matches_torch(tiny_run, tmp_path):
+    _, _, final = tiny_run
+    report = export_onnx(final, tmp_path / "tiny.onnx")
+    assert report.max_offset_diff <= TOLERANCE
+    assert report.n_nodes > 0
+    predictor = Predictor(report.path)
+    assert predictor.near == NEAR
+    voro = predictor.predict(check_grids()[1])
+    assert voro.occupancy.any() and not voro.occupancy.all()
+
+
+def test_crop_leaves_node_outputs_unchanged():
+    torch.manual_seed(1)
+    model = VoroNet().eval()
+    g = 40
+    sdf = (np.linalg.norm(grid_nodes(g) - 0.2, axis=1) - 0.35).reshape(g, g, g).astype(np.float32)
+    cropped = network_input(sdf, near=NEAR, margin=model.receptive_radius)
+    whole = network_input(sdf, near=NEAR, margin=sdf.shape[0])
+    assert cropped.sdf_voxels.size < whole.sdf_voxels.size
+    np.testing.assert_array_equal(cropped.ijk, whole.ijk)
+    with torch.no_grad():
+        a = model(torch.from_numpy(cropped.sdf_voxels), torch.from_numpy(cropped.nodes))
+        b = model(torch.from_numpy(whole.sdf_voxels), torch.from_numpy(whole.nodes))
+    for x, y in zip(a, b):
+        torch.testing.assert_close(x, y, rtol=0, atol=1e-5)
+
+
+def test_augment_moves_grid_and_points_alike():
+    g = 17
+    p = grid_nodes(g)
+    sdf = (np.linalg.norm((p - [0.2, -0.1, 0.3]) * [1.0, 1.5, 0.7], axis=1) - 0.5).reshape(g, g, g)
+    points = np.random.default_rng(0).uniform(-0.8, 0.8, (50, 3))
+    moved_sdf, moved_points = augment(sdf, points, np.random.default_rng(5))
+    np.testing.assert_allclose(sdf_at(moved_sdf, moved_points), sdf_at(sdf, points), atol=1e-12)
+
+
+def test_config_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="config"):
+        load_config(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"stage1": {"epoch": 3}}')
+    with pytest.raises(ValueError, match="epoch"):
+        load_config(bad)
+    bad.write_text('{"lr": 3}')
+    with pytest.raises(ValueError, match="unknown config key 'lr'"):
+        load_config(bad)
+    bad.write_text("{not json")
+    with pytest.raises(ValueError, match="not a valid config"):
+        load_config(bad)
+
+
+def test_checkpoint_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="checkpoint"):
+        load_checkpoint(tmp_path / "missing.pt")
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="not a voro3d.learn checkpoint"):
+        load_checkpoint(corrupt)
+    with pytest.raises(ValueError, match="not a voro3d.learn checkpoint"):
+        export_onnx(corrupt, tmp_path / "out.onnx")

@@ -1,0 +1,446 @@
+"""Two-stage training of :class:`~voro3d.learn.model.VoroNet`, as in the paper.
+
+Stage 1 trains the CNN and MLP1 (offsets) with VoroLoss plus ``reg_weight`` times the largest
+offset norm; stage 2 freezes both and trains MLP2 (occupancy) with binary cross-entropy against
+the true occupancy of every predicted cell: the shape's inside test at
+:func:`voro3d.occupancy.cell_interior_points` of the predicted generators, with the fixed
+fallback generators of :mod:`voro3d.infer` present as at inference.
+
+Both stages see exactly the network input of :func:`voro3d.infer.network_input`. VoroLoss is
+measured in voxel units (divided by the squared voxel size), so grids of every size weigh the
+same. A batch is ``batch_size`` shapes, each at a grid size drawn with ``grid_weights`` and
+(stage 1) a random axis permutation and flips; their losses are averaged before one step.
+
+Run ``python -m voro3d.learn.train models/voromesh_sdf.json`` (or :func:`train_main`). Relative
+paths in the config resolve against the working directory. Everything random derives from
+``seed`` and the epoch, so a run resumed from its last checkpoint ends where an uninterrupted
+one would.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..infer import BAND, NetworkInput, assemble, fixed_generators, network_input, sdf_at
+from ..io import atomic_path
+from ..loss import voroloss
+from . import machine_description
+from .data import ShapeSet, build_dataset
+from .model import VoroNet, load_checkpoint, save_checkpoint
+
+DEFAULTS = {
+    "seed": 0,
+    "threads": 1,
+    "run_dir": "runs/voromesh_sdf",
+    "data": {"train_dir": "runs/voromesh_sdf/data/train", "val_dir": "runs/voromesh_sdf/data/val",
+             "n_train": 360, "n_val": 16, "train_seed": 7, "val_seed": 1001, "grids": [32, 64],
+             "n_samples": 50_000, "mesh_dir": None},
+    "model": {"width": 16, "coarse_width": 32, "head_width": 64, "truncation": 3.0},
+    "near": 1.0,
+    "band": BAND,
+    "stage1": {"epochs": 20, "batch_size": 2, "lr": 3e-3, "final_lr_fraction": 0.05, "reg_weight": 2e-3,
+               "samples_per_shape": 20_000, "grid_weights": [0.7, 0.3], "augment": True},
+    "stage2": {"epochs": 12, "batch_size": 4096, "lr": 1e-3, "n_shapes": 80, "nodes_per_shape": 3000},
+    "validation": {"n_detail": 4, "cd_points": 10_000},
+}
+
+
+def load_config(path) -> dict:
+    """A training config: JSON (or YAML when PyYAML is installed) merged over ``DEFAULTS``.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    ValueError
+        Unparseable file, or keys that ``DEFAULTS`` does not know (typos would be silently ignored).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no config file at {path}")
+    text = path.read_text()
+    try:
+        if path.suffix.lower() in (".yaml", ".yml"):
+            try:
+                import yaml
+            except ImportError:
+                raise ValueError(f"{path} is YAML but PyYAML is not installed; use a .json config") from None
+            given = yaml.safe_load(text)
+        else:
+            given = json.loads(text)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"{path} is not a valid config: {error}") from error
+    if not isinstance(given, dict):
+        raise ValueError(f"{path} must hold a mapping, got {type(given).__name__}")
+    config = copy.deepcopy(DEFAULTS)
+    for key, value in given.items():
+        if key not in config:
+            raise ValueError(f"{path}: unknown config key {key!r}; known: {sorted(config)}")
+        if isinstance(config[key], dict):
+            unknown = set(value) - set(config[key])
+            if unknown:
+                raise ValueError(f"{path}: unknown keys {sorted(unknown)} in {key!r}; known: {sorted(config[key])}")
+            config[key].update(value)
+        else:
+            config[key] = value
+    return config
+
+
+def augment(sdf: np.ndarray, points: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A random axis permutation and flips, applied alike to a ``(g, g, g)`` grid and ``(m, 3)`` points.
+
+    The grid is symmetric about 0 (node ``i`` of ``g`` mirrors node ``g - 1 - i``), so flipping an
+    axis of the array negates that coordinate exactly.
+    """
+    perm = rng.permutation(3)
+    flips = rng.random(3) < 0.5
+    sdf = np.transpose(sdf, perm)
+    sdf = np.ascontiguousarray(np.flip(sdf, axis=tuple(np.flatnonzero(flips))))
+    points = points[:, perm] * np.where(flips, -1.0, 1.0).astype(points.dtype)
+    return sdf, points
+
+
+def _as_torch(net_input: NetworkInput) -> tuple[torch.Tensor, torch.Tensor]:
+    return torch.from_numpy(net_input.sdf_voxels), torch.from_numpy(net_input.nodes)
+
+
+def _generators(net_input: NetworkInput, offsets: torch.Tensor) -> torch.Tensor:
+    """``(n, 3)`` float32 generators in ``[-1, 1]^3``: node positions plus offsets times the voxel size."""
+    return torch.from_numpy(net_input.positions.astype(np.float32)) + net_input.step * offsets
+
+
+def shape_loss(model: VoroNet, sdf: np.ndarray, samples: np.ndarray, *, near: float,
+               reg_weight: float) -> tuple[torch.Tensor, dict]:
+    """Stage-1 loss of one shape: VoroLoss in voxel units plus ``reg_weight`` times the largest offset.
+
+    Parameters
+    ----------
+    model : VoroNet
+    sdf : (g, g, g) float32
+    samples : (m, 3) float32
+        Surface samples in the grid's ``[-1, 1]^3`` frame.
+    near : float
+        Node threshold in voxels.
+    reg_weight : float
+        The paper's lambda, per voxel of offset.
+
+    Returns
+    -------
+    loss : torch.Tensor
+        0-dim, differentiable in the model's CNN and MLP1 parameters.
+    parts : dict
+        ``voroloss`` (voxel^2) and ``max_offset`` (voxels) as floats.
+    """
+    net_input = network_input(sdf, near=near, margin=model.receptive_radius)
+    features = model.node_features(*_as_torch(net_input))
+    offsets = model.offset_head(features)
+    distance = voroloss(torch.from_numpy(samples), _generators(net_input, offsets)) / net_input.step**2
+    largest = offsets.norm(dim=1).max()
+    return distance + reg_weight * largest, {"voroloss": distance.item(), "max_offset": largest.item()}
+
+
+def cell_labels(mesh_queries, net_input: NetworkInput, generators: np.ndarray, sdf: np.ndarray, *,
+                near: float, band: float) -> np.ndarray:
+    """True occupancy of the predicted cells, with the fixed fallback generators present.
+
+    Parameters
+    ----------
+    mesh_queries : voro3d.sampling.InsideOutside
+        Inside test of the ground-truth mesh (fit frame).
+    net_input : NetworkInput
+    generators : (n, 3) float64
+        Predicted generators.
+    sdf : (g, g, g) float32
+    near, band : float
+        Node threshold and outer edge of the fixed band, in voxels.
+
+    Returns
+    -------
+    (n,) bool
+        Whether the interior point of each predicted cell lies inside the mesh.
+    """
+    from ..occupancy import cell_interior_points
+
+    fixed, _ = fixed_generators(sdf, near=near, band=band)
+    points = cell_interior_points(np.concatenate([generators, fixed]))[: generators.shape[0]]
+    return mesh_queries.occupancy(points)
+
+
+class _Validation:
+    """Fixed validation shapes, their labels' inputs, and the Marching Cubes scores to beat."""
+
+    def __init__(self, shapes: ShapeSet, grids, n_detail: int, cd_points: int):
+        from ..baselines import marching_cubes
+        from ..metrics import evaluate
+        from ..sampling import InsideOutside
+
+        self.shapes = [shapes[i] for i in range(len(shapes))]
+        self.grids = list(grids)
+        self.detail = list(range(min(n_detail, len(self.shapes))))
+        self.cd_points = cd_points
+        self.queries = {i: InsideOutside((self.shapes[i]["vertices"], self.shapes[i]["triangles"]))
+                        for i in self.detail}
+        self.mc = {}
+        for grid in self.grids:
+            scores = [evaluate(marching_cubes(self.shapes[i][f"sdf_{grid}"]), self._gt(i), n_points=cd_points)
+                      for i in self.detail]
+            self.mc[grid] = float(np.mean([s["chamfer_x1e5"] for s in scores]))
+
+    def _gt(self, i):
+        return self.shapes[i]["vertices"], self.shapes[i]["triangles"]
+
+    def run(self, model: VoroNet, *, near: float, band: float, stage: int) -> dict:
+        """Validation metrics; stage 1 labels cells by the SDF sign at the generator (MLP2 is untrained)."""
+        from ..metrics import evaluate
+
+        model.eval()
+        result = {}
+        for grid in self.grids:
+            losses, correct, total, chamfers = [], 0, 0, []
+            for i, shape in enumerate(self.shapes):
+                sdf = shape[f"sdf_{grid}"]
+                net_input = network_input(sdf, near=near, margin=model.receptive_radius)
+                with torch.no_grad():
+                    offsets, logits = model(*_as_torch(net_input))
+                    generators = _generators(net_input, offsets)
+                    losses.append(float(voroloss(torch.from_numpy(shape["samples"]), generators)) / net_input.step**2)
+                if i not in self.detail:
+                    continue
+                if stage == 1:
+                    logits = torch.from_numpy(-sdf_at(sdf, generators.double().numpy()))
+                generators = generators.double().numpy()
+                labels = cell_labels(self.queries[i], net_input, generators, sdf, near=near, band=band)
+                correct += int(((logits.numpy() > 0) == labels).sum())
+                total += labels.size
+                voro = assemble(sdf, net_input, offsets.numpy(), logits.numpy(), near=near, fallback=True,
+                                band=band)
+                chamfers.append(evaluate(voro.to_open3d(), self._gt(i), n_points=self.cd_points)["chamfer_x1e5"])
+            result[f"val_voroloss_{grid}"] = float(np.mean(losses))
+            result[f"val_occupancy_accuracy_{grid}"] = correct / max(total, 1)
+            result[f"val_chamfer_x1e5_{grid}"] = float(np.mean(chamfers)) if chamfers else float("nan")
+            result[f"val_mc_chamfer_x1e5_{grid}"] = self.mc[grid]
+        return result
+
+
+def _plot(history: list[dict], path: Path, grids) -> None:
+    """Loss curves of both stages into a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 3, figsize=(15, 4))
+    first = [h for h in history if h["stage"] == 1]
+    second = [h for h in history if h["stage"] == 2]
+    if first:
+        epochs = [h["epoch"] + 1 for h in first]
+        axes[0].plot(epochs, [h["train_loss"] for h in first], label="train loss (VoroLoss + reg)")
+        for grid in grids:
+            axes[0].plot(epochs, [h[f"val_voroloss_{grid}"] for h in first], label=f"val VoroLoss {grid}^3")
+        axes[0].set(title="stage 1", xlabel="epoch", ylabel="voxel^2", yscale="log")
+        axes[0].legend()
+    if second:
+        epochs = [h["epoch"] + 1 for h in second]
+        axes[1].plot(epochs, [h["train_loss"] for h in second], label="train BCE")
+        for grid in grids:
+            axes[1].plot(epochs, [1 - h[f"val_occupancy_accuracy_{grid}"] for h in second],
+                         label=f"val occupancy error {grid}^3")
+        axes[1].set(title="stage 2", xlabel="epoch", yscale="log")
+        axes[1].legend()
+    step = list(range(1, len(history) + 1))
+    for grid in grids:
+        axes[2].plot(step, [h[f"val_chamfer_x1e5_{grid}"] for h in history], label=f"learned {grid}^3")
+        axes[2].plot(step, [h[f"val_mc_chamfer_x1e5_{grid}"] for h in history], "--", label=f"MC {grid}^3")
+    axes[2].set(title="validation CD x1e5 (stage 1 then 2)", xlabel="epoch (both stages)", yscale="log")
+    axes[2].legend()
+    figure.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        figure.savefig(tmp, dpi=100)
+    plt.close(figure)
+
+
+def _stage1_epoch(model, optimizer, scheduler, shapes: ShapeSet, config: dict, epoch: int, progress) -> dict:
+    stage = config["stage1"]
+    grids = config["data"]["grids"]
+    rng = np.random.default_rng([config["seed"], 1, epoch])
+    order = rng.permutation(len(shapes))
+    model.train()
+    totals = []
+    for start in range(0, len(order), stage["batch_size"]):
+        optimizer.zero_grad()
+        batch = order[start:start + stage["batch_size"]]
+        parts = []
+        for i in batch:
+            shape = shapes[int(i)]
+            grid = int(rng.choice(grids, p=np.asarray(stage["grid_weights"]) / np.sum(stage["grid_weights"])))
+            pick = rng.choice(shape["samples"].shape[0], size=stage["samples_per_shape"], replace=False)
+            sdf, samples = shape[f"sdf_{grid}"], shape["samples"][pick]
+            if stage["augment"]:
+                sdf, samples = augment(sdf, samples, rng)
+            loss, part = shape_loss(model, sdf, samples, near=config["near"], reg_weight=stage["reg_weight"])
+            (loss / len(batch)).backward()
+            parts.append(loss.item())
+        optimizer.step()
+        scheduler.step()
+        totals.append(float(np.mean(parts)))
+        progress.update(len(batch))
+        progress.set_postfix(loss=f"{totals[-1]:.4f}")
+    return {"train_loss": float(np.mean(totals))}
+
+
+def _occupancy_table(model: VoroNet, shapes: ShapeSet, indices, grids, *, near: float, band: float,
+                     nodes_per_shape: int, seed: int, progress) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Frozen features, offsets and true cell labels of up to ``nodes_per_shape`` nodes per shape and grid."""
+    from ..sampling import InsideOutside
+
+    rng = np.random.default_rng([seed, 2])
+    features, offsets, labels = [], [], []
+    model.eval()
+    for i in indices:
+        shape = shapes[int(i)]
+        queries = InsideOutside((shape["vertices"], shape["triangles"]))
+        for grid in grids:
+            sdf = shape[f"sdf_{grid}"]
+            net_input = network_input(sdf, near=near, margin=model.receptive_radius)
+            with torch.no_grad():
+                feature = model.node_features(*_as_torch(net_input))
+                offset = model.offset_head(feature)
+            generators = _generators(net_input, offset).double().numpy()
+            label = cell_labels(queries, net_input, generators, sdf, near=near, band=band)
+            keep = rng.permutation(label.size)[:nodes_per_shape]
+            features.append(feature[keep])
+            offsets.append(offset[keep])
+            labels.append(torch.from_numpy(label[keep]))
+        progress.update(1)
+    return torch.cat(features), torch.cat(offsets), torch.cat(labels).float()
+
+
+def train_main(config_path) -> Path:
+    """Train a model from a config file, resuming from ``run_dir/last.pt`` when it exists.
+
+    Writes to ``run_dir``: ``last.pt`` (after every epoch), ``final.pt`` (model, config,
+    history, training record), ``history.json`` and ``loss_curve.png``.
+
+    Parameters
+    ----------
+    config_path : str or os.PathLike
+        JSON (or YAML) config; see ``DEFAULTS`` for the keys.
+
+    Returns
+    -------
+    pathlib.Path
+        ``run_dir/final.pt``.
+    """
+    from tqdm import tqdm
+
+    config = load_config(config_path)
+    torch.set_num_threads(int(config["threads"]))
+    torch.manual_seed(config["seed"])
+    run_dir = Path(config["run_dir"])
+    run_dir.mkdir(parents=True, exist_ok=True)
+    data = config["data"]
+    grids = [int(g) for g in data["grids"]]
+    train = ShapeSet(build_dataset(data["train_dir"], data["n_train"], grids, data["train_seed"],
+                                   n_samples=data["n_samples"], mesh_dir=data["mesh_dir"]))
+    validation = _Validation(ShapeSet(build_dataset(data["val_dir"], data["n_val"], grids, data["val_seed"],
+                                                    n_samples=data["n_samples"])),
+                             grids, config["validation"]["n_detail"], config["validation"]["cd_points"])
+
+    model = VoroNet(**config["model"])
+    s1, s2 = config["stage1"], config["stage2"]
+    steps_per_epoch = -(-len(train) // s1["batch_size"])
+    optimizer = torch.optim.Adam(list(model.parameters()), lr=s1["lr"])
+    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=s1["epochs"] * steps_per_epoch,
+                                                           eta_min=s1["lr"] * s1["final_lr_fraction"])
+    history, seconds = [], {"stage1": 0.0, "stage2": 0.0}
+    stage, epoch = 1, 0
+    last = run_dir / "last.pt"
+    if last.is_file():
+        model, state = load_checkpoint(last)
+        history, seconds, stage, epoch = state["history"], state["seconds"], state["stage"], state["epoch"]
+        optimizer = torch.optim.Adam(list(model.parameters()), lr=s1["lr"])
+        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=s1["epochs"] * steps_per_epoch,
+                                                               eta_min=s1["lr"] * s1["final_lr_fraction"])
+        if stage == 1:
+            optimizer.load_state_dict(state["optimizer"])
+            scheduler.load_state_dict(state["scheduler"])
+        tqdm.write(f"resuming {last}: stage {stage}, epoch {epoch}")
+
+    def checkpoint(path, **extra):
+        save_checkpoint(path, model, config=config, near=config["near"], history=history, seconds=seconds,
+                        stage=stage, epoch=epoch, **extra)
+        with atomic_path(run_dir / "history.json", suffix=".json") as tmp:
+            Path(tmp).write_text(json.dumps(history, indent=1))
+        _plot(history, run_dir / "loss_curve.png", grids)
+
+    while stage == 1 and epoch < s1["epochs"]:
+        started = time.perf_counter()
+        with tqdm(total=len(train), desc=f"stage 1 epoch {epoch + 1}/{s1['epochs']}", unit="shape",
+                  leave=False) as progress:
+            metrics = _stage1_epoch(model, optimizer, scheduler, train, config, epoch, progress)
+        seconds["stage1"] += time.perf_counter() - started
+        metrics.update(validation.run(model, near=config["near"], band=config["band"], stage=1), stage=1, epoch=epoch)
+        history.append(metrics)
+        tqdm.write(json.dumps(metrics))
+        epoch += 1
+        checkpoint(last, optimizer=optimizer.state_dict(), scheduler=scheduler.state_dict())
+    if stage == 1:
+        stage, epoch = 2, 0
+
+    # Stage 2: the CNN and MLP1 are frozen, so their outputs are computed once per shape.
+    for parameter in model.parameters():
+        parameter.requires_grad_(False)
+    head = model.occupancy_head
+    for parameter in head.parameters():
+        parameter.requires_grad_(True)
+    optimizer = torch.optim.Adam(head.parameters(), lr=s2["lr"])
+    if stage == 2 and epoch > 0:
+        optimizer.load_state_dict(torch.load(last, map_location="cpu", weights_only=False)["optimizer"])
+    if epoch < s2["epochs"]:
+        started = time.perf_counter()
+        indices = np.random.default_rng([config["seed"], 3]).permutation(len(train))[: s2["n_shapes"]]
+        with tqdm(total=len(indices), desc="stage 2 labels", unit="shape", leave=False) as progress:
+            features, offsets, labels = _occupancy_table(
+                model, train, indices, grids, near=config["near"], band=config["band"],
+                nodes_per_shape=s2["nodes_per_shape"], seed=config["seed"], progress=progress)
+        seconds["stage2"] += time.perf_counter() - started
+    while epoch < s2["epochs"]:
+        started = time.perf_counter()
+        order = torch.from_numpy(np.random.default_rng([config["seed"], 4, epoch]).permutation(labels.shape[0]))
+        head.train()
+        losses = []
+        for start in tqdm(range(0, order.shape[0], s2["batch_size"]), desc=f"stage 2 epoch {epoch + 1}",
+                          leave=False):
+            rows = order[start:start + s2["batch_size"]]
+            logits = model.occupancy(features[rows], offsets[rows])
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, labels[rows])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            losses.append(loss.item())
+        seconds["stage2"] += time.perf_counter() - started
+        metrics = validation.run(model, near=config["near"], band=config["band"], stage=2)
+        metrics.update(train_loss=float(np.mean(losses)), stage=2, epoch=epoch)
+        history.append(metrics)
+        tqdm.write(json.dumps(metrics))
+        epoch += 1
+        checkpoint(last, optimizer=optimizer.state_dict())
+
+    final = run_dir / "final.pt"
+    training = {"seconds_stage1": round(seconds["stage1"], 1), "seconds_stage2": round(seconds["stage2"], 1),
+                "threads": int(config["threads"]), "machine": machine_description(),
+                "torch": torch.__version__, "n_train_shapes": len(train), "grids": grids}
+    checkpoint(final, training=training, validation=history[-1] if history else {})
+    return final
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        sys.exit("usage: python -m voro3d.learn.train CONFIG.json")
+    print(train_main(sys.argv[1]))
