@@ -82,3 +82,16 @@ def test_cli_predict_from_mesh_and_sdf(tmp_path, capsys):
     np.save(tmp_path / "bad.npy", np.zeros((32, 32, 31), np.float32))
     assert main(["predict", str(tmp_path / "bad.npy"), "-o", str(tmp_path / "c.ply")]) == 2
     assert "sdf" in capsys.readouterr().err.lower() and not (tmp_path / "c.ply").exists()
+
+
+def test_cli_reconstruct_point_cloud(tmp_path):
+    from voro3d.sampling import sample_surface
+    from voro3d.shapes import example_mesh
+
+    points, normals = sample_surface(example_mesh("torus"), 5000, seed=0)
+    np.save(tmp_path / "cloud.npy", np.hstack([points, normals]))
+    for method in ("fit", "learned"):
+        out = tmp_path / f"{method}.ply"
+        assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(out), "--grid", "16",
+                     "--steps", "40", "--method", method, "-q"]) == 0
+        assert voro3d.check_watertight(voro3d.load_mesh(out, weld=False), self_intersection=False).watertight

@@ -57,6 +57,17 @@ def _predict(args) -> None:
     _say(args, f"wrote {args.output} ({len(shape.generators)} generators, {len(mesh.triangles)} triangles)")
 
 
+def _reconstruct(args) -> None:
+    from .io import save_mesh
+    from .reconstruct import reconstruct
+
+    mesh = reconstruct(args.input, args.grid, method=args.method, steps=args.steps, seed=args.seed,
+                       progress=not args.quiet)
+    save_mesh(mesh, args.output)
+    _maybe_render(args, [mesh], [f"VoroMesh ({args.method}) {args.grid}^3"])
+    _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
+
+
 def _load_sdf(path: Path):
     import numpy as np
 
@@ -157,6 +168,17 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("--png", help="also render a picture here")
     predict.add_argument("-q", "--quiet", action="store_true")
     predict.set_defaults(run=_predict)
+
+    rebuild = commands.add_parser("reconstruct", help="watertight mesh from a point cloud (or mesh) file")
+    rebuild.add_argument("input", help="point cloud (.ply .pcd .xyz .xyzn .pts, .npy (n,3)/(n,6)) or mesh")
+    rebuild.add_argument("-o", "--output", required=True, help="output mesh")
+    rebuild.add_argument("--grid", type=int, default=32)
+    rebuild.add_argument("--method", choices=("fit", "learned"), default="fit")
+    rebuild.add_argument("--steps", type=int, default=400)
+    rebuild.add_argument("--seed", type=int, default=0)
+    rebuild.add_argument("--png", help="also render a picture here")
+    rebuild.add_argument("-q", "--quiet", action="store_true")
+    rebuild.set_defaults(run=_reconstruct)
 
     train = commands.add_parser("train", help="train the SDF -> generators network (needs torch)")
     train.add_argument("--config", required=True, help="JSON config, e.g. models/voromesh_sdf.json")
