@@ -40,7 +40,7 @@ def _one(path, grid, steps, picture_dir, queue):
     import torch
 
     from voro3d.baselines import dual_contouring, marching_cubes
-    from voro3d.fit import fit_with_info
+    from voro3d.fitting import fit_with_info
     from voro3d.io import fit_frame, load_mesh, save_mesh, to_triangle_mesh
     from voro3d.sampling import sdf_grid
 

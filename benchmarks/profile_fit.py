@@ -1,4 +1,4 @@
-"""Where :func:`voro3d.fit.fit` spends its time, and what the candidate-search policy costs in quality.
+"""Where :func:`voro3d.fitting.fit` spends its time, and what the candidate-search policy costs in quality.
 
 Three tables:
 

@@ -5,9 +5,9 @@ import open3d as o3d
 import pytest
 import torch
 
-from voro3d import fit as fit_module
+from voro3d import fitting as fit_module
 from voro3d.extract import VoroMesh, extract_mesh
-from voro3d.fit import FitInfo, fit, fit_with_info
+from voro3d.fitting import FitInfo, fit, fit_with_info
 from voro3d.io import load_mesh, mesh_arrays
 from voro3d.sampling import InsideOutside, sample_surface
 from voro3d.watertight import check_watertight

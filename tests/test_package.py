@@ -95,3 +95,12 @@ def test_cli_reconstruct_point_cloud(tmp_path):
         assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(out), "--grid", "16",
                      "--steps", "40", "--method", method, "-q"]) == 0
         assert voro3d.check_watertight(voro3d.load_mesh(out, weld=False), self_intersection=False).watertight
+
+
+def test_public_functions_survive_submodule_imports():
+    import importlib
+
+    for name, module in voro3d._PUBLIC.items():
+        importlib.import_module(f"voro3d.{module}")
+    assert callable(voro3d.fit) and callable(voro3d.reconstruct) and callable(voro3d.evaluate)
+    assert not any(isinstance(getattr(voro3d, name), type(voro3d)) for name in voro3d.__all__)

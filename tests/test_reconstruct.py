@@ -4,7 +4,7 @@ import open3d as o3d
 import pytest
 
 from voro3d.metrics import evaluate
-from voro3d.reconstruct import VoroMeshStage, estimate_normals, reconstruct
+from voro3d.reconstruction import VoroMeshStage, estimate_normals, reconstruct
 from voro3d.sampling import point_winding_number, sample_surface
 from voro3d.shapes import example_mesh
 from voro3d.watertight import check_watertight

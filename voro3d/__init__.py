@@ -1,7 +1,9 @@
 """voro3d: watertight, self-intersection-free surface meshes with VoroMesh.
 
 Public names are imported lazily so that ``import voro3d`` (and ``voro3d --help``) stays
-instant and inference never loads torch.
+instant and inference never loads torch. No module is named like a public function (the fit
+lives in ``fitting``): importing a submodule binds its name on the package, which would hide
+a function of the same name.
 """
 from importlib import import_module
 
@@ -14,9 +16,9 @@ _PUBLIC = {
     "initial_generators": "generators",
     "voroloss": "loss",
     "knn_candidates": "loss",
-    "fit": "fit",
-    "fit_with_info": "fit",
-    "FitInfo": "fit",
+    "fit": "fitting",
+    "fit_with_info": "fitting",
+    "FitInfo": "fitting",
     "label_cells": "occupancy",
     "VoroMesh": "extract",
     "extract_mesh": "extract",
@@ -27,8 +29,8 @@ _PUBLIC = {
     "predict": "infer",
     "predict_mesh": "infer",
     "Predictor": "infer",
-    "reconstruct": "reconstruct",
-    "VoroMeshStage": "reconstruct",
+    "reconstruct": "reconstruction",
+    "VoroMeshStage": "reconstruction",
 }
 
 __all__ = sorted(_PUBLIC)

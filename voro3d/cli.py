@@ -22,7 +22,7 @@ def _extract(args) -> None:
 
 
 def _fit(args) -> None:
-    from .fit import fit
+    from .fitting import fit
     from .io import load_mesh, save_mesh
 
     source = load_mesh(args.mesh)
@@ -59,7 +59,7 @@ def _predict(args) -> None:
 
 def _reconstruct(args) -> None:
     from .io import save_mesh
-    from .reconstruct import reconstruct
+    from .reconstruction import reconstruct
 
     mesh = reconstruct(args.input, args.grid, method=args.method, steps=args.steps, seed=args.seed,
                        progress=not args.quiet)

@@ -17,7 +17,7 @@ from pathlib import Path
 def run(out: Path, *, shape: str = "bracket", grid: int = 32, quiet: bool = False) -> dict:
     """Fit ``shape`` at ``grid``, write meshes, metrics and a picture; return the metrics."""
     from .baselines import marching_cubes
-    from .fit import fit
+    from .fitting import fit
     from .io import fit_frame, save_mesh, to_triangle_mesh
     from .metrics import evaluate
     from .render import render_meshes

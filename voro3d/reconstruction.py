@@ -55,7 +55,7 @@ def reconstruct(geometry, grid: int = 32, *, method: str = "fit", steps: int = 4
     kind, data = _read(geometry)
     if kind == "mesh":
         if method == "fit":
-            from .fit import fit
+            from .fitting import fit
 
             return fit(data, grid, steps=steps, seed=seed, device=device, progress=progress).to_open3d()
         from .infer import predict_mesh
@@ -108,7 +108,7 @@ def _reconstruct_points(points, normals, grid, *, method, steps, seed, device, p
 
         shape = predict(_cloud_sdf(framed, inside, grid))
         return VoroMesh(frame.invert(shape.generators), shape.occupancy)
-    from .fit import SAMPLES_PER_FACE, fit_samples
+    from .fitting import SAMPLES_PER_FACE, fit_samples
 
     budget = SAMPLES_PER_FACE * grid**2
     samples = framed
