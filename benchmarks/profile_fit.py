@@ -32,7 +32,7 @@ from pathlib import Path
 
 import torch
 
-from voro3d import fit as fit_module
+from voro3d import fitting as fit_module
 from voro3d.extract import extract_mesh
 from voro3d.generators import initial_generators
 from voro3d.io import fit_frame, load_mesh, mesh_arrays
