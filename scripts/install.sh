@@ -23,4 +23,5 @@ if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
         .venv/bin/python -m pip install -q torch==2.13.0
     fi
 fi
-.venv/bin/python -m pip install -q -e ".[dev]"
+# The Ray extra is installed too so that the tests cover `voro3d batch --engine ray`.
+.venv/bin/python -m pip install -q -e ".[dev,ray]"

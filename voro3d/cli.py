@@ -190,6 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("-o", "--output", required=True, help="output .onnx")
     export.set_defaults(run=_export)
 
+    from .batch import add_batch_parser
+
+    add_batch_parser(commands)
+
     evaluate = commands.add_parser("eval", help="Chamfer, F1, normal consistency and watertightness")
     evaluate.add_argument("predicted")
     evaluate.add_argument("ground_truth")
@@ -219,14 +223,14 @@ def _version() -> str:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        args.run(args)
+        status = args.run(args)
     except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as error:
         print(f"voro3d {args.command}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"voro3d {args.command}: interrupted", file=sys.stderr)
         return 130
-    return 0
+    return status if isinstance(status, int) else 0
 
 
 if __name__ == "__main__":
