@@ -227,6 +227,9 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as error:
         print(f"voro3d {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except RuntimeError as error:  # a failed internal check or worker: say it in one line too
+        print(f"voro3d {args.command}: failed: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"voro3d {args.command}: interrupted", file=sys.stderr)
         return 130
