@@ -141,43 +141,35 @@ def build_parser() -> argparse.ArgumentParser:
 
     extract = commands.add_parser("extract", help="watertight mesh from saved generators + occupancy (.npz)")
     extract.add_argument("generators", help=".npz with arrays 'generators' (n,3) and 'occupancy' (n,)")
-    extract.add_argument("-o", "--output", required=True, help="output mesh (.ply, .obj, .off, .stl)")
-    extract.add_argument("--png", help="also render a picture here")
-    extract.add_argument("-q", "--quiet", action="store_true")
+    _mesh_output_options(extract)
     extract.set_defaults(run=_extract)
 
     fit = commands.add_parser("fit", help="fit a VoroMesh to a watertight mesh (direct optimisation)")
     fit.add_argument("mesh", help="input mesh (.ply, .obj, .off, .stl)")
-    fit.add_argument("-o", "--output", required=True, help="output mesh")
+    _mesh_output_options(fit)
     fit.add_argument("--grid", type=int, default=32, help="grid resolution g (g^3 nodes), default 32")
     fit.add_argument("--steps", type=int, default=400, help="Adam steps, default 400")
     fit.add_argument("--seed", type=int, default=0)
     fit.add_argument("--device", default="cpu", help="cpu or cuda")
-    fit.add_argument("--png", help="also render input and result side by side here")
     fit.add_argument("--save-generators", help="also save generators + occupancy (.npz)")
-    fit.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
     fit.set_defaults(run=_fit)
 
     predict = commands.add_parser("predict", help="learned VoroMesh from an SDF grid or a mesh (ONNX, no torch)")
     predict.add_argument("input", help="SDF grid (.npy, or .npz with array 'sdf'; (g,g,g), negative inside, "
                                        "nodes spanning [-1,1]^3) or a mesh")
-    predict.add_argument("-o", "--output", required=True, help="output mesh")
+    _mesh_output_options(predict)
     predict.add_argument("--grid", type=int, default=32, help="SDF resolution when INPUT is a mesh, default 32")
     predict.add_argument("--model", help="ONNX model (default: the shipped models/voromesh_sdf.onnx)")
     predict.add_argument("--no-fallback", action="store_true", help="trust the network's occupancy everywhere")
-    predict.add_argument("--png", help="also render a picture here")
-    predict.add_argument("-q", "--quiet", action="store_true")
     predict.set_defaults(run=_predict)
 
     rebuild = commands.add_parser("reconstruct", help="watertight mesh from a point cloud (or mesh) file")
     rebuild.add_argument("input", help="point cloud (.ply .pcd .xyz .xyzn .pts, .npy (n,3)/(n,6)) or mesh")
-    rebuild.add_argument("-o", "--output", required=True, help="output mesh")
+    _mesh_output_options(rebuild)
     rebuild.add_argument("--grid", type=int, default=32)
     rebuild.add_argument("--method", choices=("fit", "learned"), default="fit")
     rebuild.add_argument("--steps", type=int, default=400)
     rebuild.add_argument("--seed", type=int, default=0)
-    rebuild.add_argument("--png", help="also render a picture here")
-    rebuild.add_argument("-q", "--quiet", action="store_true")
     rebuild.set_defaults(run=_reconstruct)
 
     train = commands.add_parser("train", help="train the SDF -> generators network (needs torch)")
@@ -212,6 +204,13 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("-q", "--quiet", action="store_true")
     render.set_defaults(run=_render)
     return parser
+
+
+def _mesh_output_options(parser) -> None:
+    """The options every command that writes a mesh shares."""
+    parser.add_argument("-o", "--output", required=True, help="output mesh (.ply, .obj, .off, .stl, .glb)")
+    parser.add_argument("--png", help="also render a picture here (with the input beside it where there is one)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
 
 
 def _version() -> str:
