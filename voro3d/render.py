@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .io import atomic_path, mesh_arrays, to_triangle_mesh
+from .watertight import vertex_normals
 
 BACKENDS = ("auto", "open3d", "matplotlib")
 SHADINGS = ("flat", "smooth")
@@ -238,14 +239,6 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
     return vectors / np.where(length > 0, length, 1.0)
 
 
-def _vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    normals = np.zeros_like(vertices)
-    face = _triangle_normals(vertices, triangles)
-    for i in range(3):
-        np.add.at(normals, triangles[:, i], face)
-    return _unit(normals)
-
-
 def _light_directions(camera: _Camera) -> tuple[np.ndarray, np.ndarray]:
     """Key light from the upper left behind the viewer, and a dim fill from the right."""
     key = _unit(-0.45 * camera.right + 0.65 * camera.up + 0.6 * camera.back)
@@ -356,7 +349,7 @@ def _matplotlib_panel(vertices, triangles, camera: _Camera, *, rgb, shading: str
     if shading == "flat":
         brightness = np.repeat(_lambert(_unit(_triangle_normals(vertices, triangles)), camera, ambient)[:, None], 3, axis=1)
     else:
-        brightness = _lambert(_vertex_normals(vertices, triangles), camera, ambient)[triangles]
+        brightness = _lambert(vertex_normals(vertices, triangles), camera, ambient)[triangles]
     corner_rgb = vertex_rgb[triangles] * brightness[:, :, None]
     corners, corner_rgb = _split_long_faces(vertices[triangles], corner_rgb, split_limit, 2 * MAX_MATPLOTLIB_FACES)
 
@@ -477,7 +470,7 @@ def _panel_job(vertices, triangles, camera: _Camera, *, shading: str, base_rgb=N
         colors = None if vertex_rgb is None else vertex_rgb[triangles].reshape(-1, 3)
         vertices, triangles = vertices[triangles].reshape(-1, 3), np.arange(3 * len(triangles)).reshape(-1, 3)
     else:
-        normals, colors = _vertex_normals(vertices, triangles), vertex_rgb
+        normals, colors = vertex_normals(vertices, triangles), vertex_rgb
     key, _ = _light_directions(camera)
     job = {"size": np.array([camera.width, camera.height]), "vertices": np.ascontiguousarray(vertices, np.float64),
            "triangles": np.ascontiguousarray(triangles, np.int32), "normals": normals, "light": -key,
