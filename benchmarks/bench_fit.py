@@ -3,7 +3,10 @@
 For every mesh of a folder (default ``../shared/data/dev``, else the bundled examples) and
 every grid: fit a VoroMesh; build MC and DC from the same normalised SDF grid; score all
 three against the input (CD x1e5, F1 at 0.003, NC, in the NDC frame of the input) and check
-watertightness (with the exact self-intersection test). Each shape runs in its own process so
+watertightness (with the exact self-intersection test). The input is also scored against itself
+(two independent 100k-point samplings): the CD that a perfect reconstruction would get, the floor
+of this metric. An open input (boundary edges, no inside) is fitted with ``allow_open=True``
+(inside by generalized winding number) and marked. Each shape runs in its own process so
 its peak RSS is its own. Writes ``benchmarks/results/fit_<grids>.{md,json}`` and a PNG
 comparing the three on a few shapes.
 
@@ -41,21 +44,23 @@ def _one(path, grid, steps, picture_dir, queue):
 
     from voro3d.baselines import dual_contouring, marching_cubes
     from voro3d.fitting import fit_with_info
-    from voro3d.io import fit_frame, load_mesh, save_mesh, to_triangle_mesh
-    from voro3d.sampling import sdf_grid
+    from voro3d.io import fit_frame, load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
+    from voro3d.metrics import evaluate
+    from voro3d.sampling import open_edge_count, sdf_grid
 
     torch.set_num_threads(1)
     try:
         source = load_mesh(path)
+        open_input = open_edge_count(*mesh_arrays(source)) > 0
         start = time.perf_counter()
-        shape, info = fit_with_info(source, grid, steps=steps, progress=False)
+        shape, info = fit_with_info(source, grid, steps=steps, progress=False, allow_open=open_input)
         voromesh = shape.to_open3d()
         seconds = {"voromesh": time.perf_counter() - start}
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         frame = fit_frame(source)
         framed = frame.apply_mesh(source)
         start = time.perf_counter()
-        sdf = sdf_grid(framed, grid)
+        sdf = sdf_grid(framed, grid, allow_open=open_input)
         sdf_seconds = time.perf_counter() - start
         meshes = {"voromesh": voromesh}
         rows = {}
@@ -75,7 +80,9 @@ def _one(path, grid, steps, picture_dir, queue):
         if picture_dir is not None:
             for name, mesh in meshes.items():
                 save_mesh(mesh, Path(picture_dir) / f"{Path(path).stem}_{grid}_{name}.ply")
-        queue.put(dict(shape=Path(path).name, grid=grid, status="ok", **{m: rows[m] for m in METHODS}))
+        floor = evaluate(source, source)["chamfer_x1e5"]
+        queue.put(dict(shape=Path(path).name, grid=grid, status="ok", open_input=bool(open_input), floor=floor,
+                       **{m: rows[m] for m in METHODS}))
     except Exception as error:  # one bad shape is recorded, not fatal
         queue.put(dict(shape=Path(path).name, grid=grid, status="failed", error=f"{type(error).__name__}: {error}"))
 
@@ -106,6 +113,8 @@ def _summary(rows, grid):
     out["voromesh_peak_rss_mib"] = float(max((r["voromesh"]["peak_rss_mib"] for r in ok), default=float("nan")))
     out["voromesh_seconds_max"] = float(max((r["voromesh"]["seconds"] for r in ok), default=float("nan")))
     out["cd_ratio_vs_mc"] = out["voromesh_chamfer_x1e5"] / out["mc_chamfer_x1e5"]
+    out["floor_chamfer_x1e5"] = float(np.mean([r["floor"] for r in ok])) if ok else float("nan")
+    out["floor_ratio_vs_mc"] = out["floor_chamfer_x1e5"] / out["mc_chamfer_x1e5"]
     return out
 
 
@@ -120,7 +129,8 @@ def write_tables(rows, grids, out: Path):
              "Means over shapes; CD x1e5, F1 at 0.003 and NC in the NDC frame of the input (100k samples each); "
              "watertight = closed, manifold, oriented, positive volume, no exactly-confirmed crossing triangles. "
              "VoroMesh seconds: whole fit (sampling, optimisation, occupancy, extraction); MC/DC seconds: SDF grid "
-             "+ meshing.", "",
+             "+ meshing. *floor*: the input scored against itself (another 100k-point sampling), what a "
+             "perfect reconstruction would score; *floor / MC* is the lowest CD ratio any method could reach.", "",
              "| grid | shapes | method | CD x1e5 | F1 | NC | watertight % | mean s | max s |",
              "|---|---|---|---|---|---|---|---|---|"]
     for s in summaries:
@@ -130,17 +140,21 @@ def write_tables(rows, grids, out: Path):
             lines.append(f"| {s['grid']} | {s['shapes']} | {method} | {s[method + '_chamfer_x1e5']:.3f} | "
                          f"{s[method + '_f1']:.3f} | {s[method + '_nc']:.3f} | {s[method + '_watertight_pct']:.0f} | "
                          f"{top} | {worst} |")
+        lines.append(f"| {s['grid']} | {s['shapes']} | floor (input vs itself) | {s['floor_chamfer_x1e5']:.3f} | | | | | |")
         lines.append(f"| {s['grid']} | | VoroMesh CD / MC CD | {s['cd_ratio_vs_mc']:.3f} | | | | peak RSS "
                      f"{s['voromesh_peak_rss_mib']:.0f} MiB | |")
-    lines += ["", "## Per shape", "", "| shape | grid | VoroMesh CD | MC CD | DC CD | VoroMesh F1 | VoroMesh NC | "
-              "VoroMesh s | watertight V/MC/DC |", "|---|---|---|---|---|---|---|---|---|"]
+        lines.append(f"| {s['grid']} | | floor / MC CD | {s['floor_ratio_vs_mc']:.3f} | | | | | |")
+    lines += ["", "## Per shape", "", "Shapes marked * are open inputs, fitted with `allow_open=True`.", "",
+              "| shape | grid | floor | VoroMesh CD | MC CD | DC CD | VoroMesh F1 | VoroMesh NC | "
+              "VoroMesh s | watertight V/MC/DC |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['shape']} | {r['grid']} | failed: {r['error']} | | | | | | |")
+            lines.append(f"| {r['shape']} | {r['grid']} | | failed: {r['error']} | | | | | | |")
             continue
         v, m, d = r["voromesh"], r["mc"], r["dc"]
         cd = {k: f"{x['chamfer_x1e5']:.3f}" if "chamfer_x1e5" in x else "no mesh" for k, x in (("m", m), ("d", d))}
-        lines.append(f"| {r['shape']} | {r['grid']} | {v['chamfer_x1e5']:.3f} | {cd['m']} | "
+        name = r["shape"] + (" *" if r.get("open_input") else "")
+        lines.append(f"| {name} | {r['grid']} | {r['floor']:.3f} | {v['chamfer_x1e5']:.3f} | {cd['m']} | "
                      f"{cd['d']} | {v['f1']:.3f} | {v['nc']:.3f} | {v['seconds']:.1f} | "
                      f"{v['watertight']}/{m['watertight']}/{d['watertight']} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")

@@ -1,6 +1,7 @@
 import argparse
 import json
 import multiprocessing
+import os
 import signal
 import subprocess
 import sys
@@ -10,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from voro3d.batch import (EXIT_INTERRUPTED, EXIT_OK, EXIT_SOME_FAILED, RESULTS_NAME, ShapeTask, _complete,
-                          _predictor, _ResultsLog, add_batch_parser, process_shape, run_batch)
+                          _cpu_slots, _predictor, _ResultsLog, add_batch_parser, process_shape, run_batch)
 from voro3d.infer import DEFAULT_MODEL
 from voro3d.io import load_mesh, mesh_arrays, save_mesh
 from voro3d.shapes import example_mesh
@@ -82,6 +83,25 @@ def test_batch_writes_one_watertight_mesh_and_row_per_shape(first_run):
                                    "format": ".ply"}
     assert summary.counts == {"ok": 3, "failed": 2, "timeout": 0}
     assert not [name for name in _files(output) if Path(name).name.startswith(".")]
+
+
+def test_workers_are_pinned_to_disjoint_shares_of_the_cpus(first_run):
+    _, output, _ = first_run
+    cpus = sorted(os.sched_getaffinity(0))
+    shares = {tuple(row["worker_cpus"]) for row in _rows(output) if row["status"] == "ok"}
+    if len(cpus) < 2:
+        assert shares == {tuple(cpus)}  # more workers than CPUs: left unpinned
+        return
+    assert all(len(share) == len(cpus) // 2 for share in shares)
+    assert all(set(a).isdisjoint(b) for a in shares for b in shares if a != b)
+
+
+def test_cpu_slots(monkeypatch):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 5})
+    assert _cpu_slots(2) == [(0, 1), (2, 3)]
+    assert _cpu_slots(5) == [(0,), (1,), (2,), (3,), (5,)]
+    assert _cpu_slots(1) == [None]  # one worker keeps every CPU
+    assert _cpu_slots(6) == [None] * 6  # more workers than CPUs: the OS schedules them
 
 
 def test_corrupt_and_open_inputs_are_recorded_and_set_the_exit_code(first_run):

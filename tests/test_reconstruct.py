@@ -64,6 +64,51 @@ def test_estimated_normals_point_outward(torus_cloud):
     assert (agreement > 0.9).mean() > 0.98
 
 
+def test_estimated_normals_of_separate_pieces_each_point_outward():
+    # Two spheres far apart: two pieces of the neighbour graph, each oriented on its own.
+    sphere = example_mesh("sphere")
+    points, normals = sample_surface(sphere, 3000, seed=1)
+    points = np.vstack([points, points * 0.5 + [5.0, 0.0, 0.0]])
+    normals = np.vstack([normals, normals])
+    agreement = np.einsum("ij,ij->i", estimate_normals(points), normals)
+    assert (agreement > 0.9).mean() > 0.98
+
+
+def test_estimated_normals_survive_noise(torus_cloud):
+    _, points, normals = torus_cloud
+    noisy = points + np.random.default_rng(0).normal(scale=0.005, size=points.shape)
+    agreement = np.einsum("ij,ij->i", estimate_normals(noisy, k=32), normals)
+    assert (agreement > 0).mean() > 0.97
+
+
+@pytest.mark.parametrize("noise, keep", [(0.01, 1.0), (0.0, 0.3)])
+def test_noisy_and_thinned_clouds_stay_watertight_and_close(torus_cloud, noise, keep):
+    mesh, points, _ = torus_cloud
+    rng = np.random.default_rng(2)
+    diagonal = np.linalg.norm(points.max(0) - points.min(0))
+    cloud = points + rng.normal(scale=noise * diagonal, size=points.shape)
+    cloud = cloud[rng.random(cloud.shape[0]) < keep]
+    out = reconstruct(cloud, **FAST)
+    assert check_watertight(out).watertight
+    assert evaluate(out, mesh, n_points=20000)["chamfer_x1e5"] < 60
+
+
+def test_inside_support_averages_and_keeps_given_normals(torus_cloud):
+    from voro3d.io import fit_frame
+    from voro3d.reconstruction import inside_support
+
+    _, points, normals = torus_cloud
+    framed = fit_frame(points).apply(points)
+    support, support_normals = inside_support(framed, normals, 16)
+    assert 100 <= support.shape[0] < points.shape[0]
+    assert np.allclose(np.linalg.norm(support_normals, axis=1), 1.0)
+    # Each averaged point's normal agrees with the true normal of its nearest input point.
+    from scipy.spatial import cKDTree
+
+    nearest = cKDTree(framed).query(support)[1]
+    assert (np.einsum("ij,ij->i", support_normals, normals[nearest]) > 0.8).mean() > 0.98
+
+
 def test_winding_number_inside_outside(torus_cloud):
     mesh, points, normals = torus_cloud
     queries = np.array([[0.0, 0.0, 0.0], [0.7, 0.0, 0.0], [0.0, 2.0, 0.0]])  # hole, tube, far

@@ -352,7 +352,8 @@ def process_shape(task: ShapeTask) -> dict:
     -------
     dict
         ``status`` (``"ok"`` or ``"failed"``), ``error``, ``seconds``, ``cpu_seconds``, ``peak_memory_mb``,
-        ``n_vertices``, ``n_faces``, ``watertight``, ``metrics``, ``worker_pid``: the shape's
+        ``n_vertices``, ``n_faces``, ``watertight``, ``metrics``, ``worker_pid``, ``worker_cpus`` (the
+        CPUs the worker may run on, None where unknown): the shape's
         part of a ``results.jsonl`` row (:func:`run_batch`).
     """
     from .io import load_mesh, save_mesh
@@ -363,6 +364,8 @@ def process_shape(task: ShapeTask) -> dict:
     _reset_peak_memory()
     start, cpu_start = time.perf_counter(), _cpu_seconds()
     result = _result("failed", worker_pid=os.getpid())
+    if hasattr(os, "sched_getaffinity"):
+        result["worker_cpus"] = sorted(os.sched_getaffinity(0))
     try:
         with _memory_cap(task.memory_limit_mb):
             source = load_mesh(task.source)
@@ -565,7 +568,7 @@ def _result(status: str, error: str | None = None, seconds: float | None = None,
     """The shape's part of a row, for :func:`process_shape` and for shapes whose worker never answered."""
     return {"status": status, "error": error, "seconds": seconds, "cpu_seconds": None,
             "peak_memory_mb": peak_memory_mb, "n_vertices": None, "n_faces": None, "watertight": None,
-            "metrics": None, "worker_pid": worker_pid}
+            "metrics": None, "worker_pid": worker_pid, "worker_cpus": None}
 
 
 # -- inside a worker ------------------------------------------------------------------------
@@ -667,8 +670,13 @@ def _memory_cap(limit_mb: int | None):
         resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
 
 
-def _worker_main(connection, parent_pid: int, method: str, model: str | None, threads: int) -> None:
+def _worker_main(connection, parent_pid: int, cpus: tuple | None, method: str, model: str | None,
+                 threads: int) -> None:
     """A local worker: warm up, say ready, then run shapes one at a time until told to stop."""
+    if cpus:
+        # Before torch, Open3D and OpenMP load: their thread pools size themselves to this mask.
+        os.sched_setaffinity(0, cpus)
+        os.environ["OMP_NUM_THREADS"] = str(len(cpus))
     from tqdm import tqdm
 
     _die_with_parent(parent_pid)
@@ -711,9 +719,10 @@ def _die_with_parent(parent_pid: int) -> None:
 class _Worker:
     """One local worker process and its pipe; it runs one shape at a time so that it can be killed alone."""
 
-    def __init__(self, context, prepare: tuple):
+    def __init__(self, context, prepare: tuple, cpus: tuple | None):
+        self.cpus = cpus
         self.connection, child = context.Pipe()
-        self.process = context.Process(target=_worker_main, args=(child, os.getpid(), *prepare), daemon=True)
+        self.process = context.Process(target=_worker_main, args=(child, os.getpid(), cpus, *prepare), daemon=True)
         self.process.start()
         child.close()
         self.ready = False
@@ -753,7 +762,7 @@ def _run_local(tasks: list, record, *, workers: int, timeout: float | None, prep
     # into workers mid-state.
     context = multiprocessing.get_context("spawn")
     queue = deque(tasks)
-    pool = [_Worker(context, prepare) for _ in range(min(workers, len(queue)))]
+    pool = [_Worker(context, prepare, cpus) for cpus in _cpu_slots(min(workers, len(queue)))]
     startup_deaths = 0
     try:
         while pool:
@@ -790,7 +799,7 @@ def _run_local(tasks: list, record, *, workers: int, timeout: float | None, prep
                         if startup_deaths >= _STARTUP_ATTEMPTS:
                             raise RuntimeError(f"worker processes die while starting: the last one "
                                                f"{_exit_reason(worker.process.exitcode)}")
-                    pool[index] = _Worker(context, prepare) if queue else None
+                    pool[index] = _Worker(context, prepare, worker.cpus) if queue else None
                 elif worker.task is not None and timeout is not None and elapsed > timeout:
                     peak = _proc_status_kb("VmHWM", worker.process.pid)
                     worker.kill()
@@ -798,7 +807,7 @@ def _run_local(tasks: list, record, *, workers: int, timeout: float | None, prep
                     record(worker.task, _result("timeout", f"no result after {timeout:g} s; worker killed", elapsed,
                                                 None if peak is None else round(peak / 1024, 1),
                                                 worker_pid=worker.process.pid))
-                    pool[index] = _Worker(context, prepare) if queue else None
+                    pool[index] = _Worker(context, prepare, worker.cpus) if queue else None
             pool = [worker for worker in pool if worker is not None]
     finally:
         for worker in pool:
@@ -807,6 +816,23 @@ def _run_local(tasks: list, record, *, workers: int, timeout: float | None, prep
             else:
                 worker.kill()
                 _remove_partials([worker.task.output])
+
+
+def _cpu_slots(workers: int) -> list:
+    """The CPUs each local worker is pinned to: an equal share of this process's, or None (unpinned).
+
+    Pinned, a worker's thread pools (OpenMP, TBB, torch) size themselves to its share instead of to
+    the whole machine, so two workers on two cores do not each start two busy threads and take
+    turns on the cores; their multi-threaded stretches (kNN searches, inside tests) then cost no
+    more than the single-threaded ones, and the workers stop slowing each other down.
+    """
+    if not hasattr(os, "sched_getaffinity"):
+        return [None] * workers
+    cpus = sorted(os.sched_getaffinity(0))
+    if workers < 2 or workers > len(cpus):
+        return [None] * workers
+    share = len(cpus) // workers
+    return [tuple(cpus[i * share:(i + 1) * share]) for i in range(workers)]
 
 
 def _exit_reason(exitcode: int) -> str:

