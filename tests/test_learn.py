@@ -6,7 +6,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from voro3d.infer import NEAR, Predictor, network_input, sdf_at  # noqa: E402
-from voro3d.learn.data import ShapeSet, build_dataset, cad_shape  # noqa: E402
+from voro3d.learn.data import ShapeSet, build_dataset, cad_shape, organic_shape  # noqa: E402
 from voro3d.learn.export import TOLERANCE, check_grids, export_onnx  # noqa: E402
 from voro3d.learn.model import VoroNet, load_checkpoint  # noqa: E402
 from voro3d.learn.train import augment, load_config, shape_loss, train_main  # noqa: E402
@@ -17,13 +17,13 @@ GRID = 16
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    """Three training shapes, two validation shapes at 16^3, two stage-1 epochs and one stage-2 epoch."""
+    """Three CAD and one organic training shapes, two validation shapes at 16^3, two stage-1 epochs and one stage-2 epoch."""
     torch.set_num_threads(1)
     root = tmp_path_factory.mktemp("learn")
     config = {
         "run_dir": str(root / "run"),
         "data": {"train_dir": str(root / "train"), "val_dir": str(root / "val"), "n_train": 3, "n_val": 2,
-                 "grids": [GRID], "n_samples": 4000},
+                 "grids": [GRID], "n_samples": 4000, "n_organic": 1},
         "stage1": {"epochs": 2, "batch_size": 2, "samples_per_shape": 2000, "grid_weights": [1.0]},
         "stage2": {"epochs": 1, "n_shapes": 3, "nodes_per_shape": 400, "batch_size": 256},
         "validation": {"n_detail": 1, "cd_points": 2000},
@@ -42,10 +42,21 @@ def test_cad_shape_is_deterministic_and_closed():
     InsideOutside((vertices, triangles))  # raises on an open mesh
 
 
+def test_organic_shape_is_deterministic_closed_and_outward():
+    from voro3d.watertight import signed_volume
+
+    vertices, triangles = organic_shape(5)
+    again, _ = organic_shape(5)
+    np.testing.assert_array_equal(vertices, again)
+    InsideOutside((vertices, triangles))  # raises on an open mesh
+    assert signed_volume(vertices, triangles) > 0
+
+
 def test_dataset_arrays_and_cache_spec(tiny_run):
     root, _, _ = tiny_run
     shapes = ShapeSet(sorted((root / "train").glob("shape_*.npz")))
     assert len(shapes) == 3
+    assert len(list((root / "train").glob("organic_*.npz"))) == 1
     shape = shapes[0]
     assert shape[f"sdf_{GRID}"].shape == (GRID,) * 3 and shape[f"sdf_{GRID}"].dtype == np.float32
     assert shape["samples"].shape == (4000, 3)

@@ -122,6 +122,7 @@ def test_winding_number_inside_outside(torus_cloud):
     (np.full((200, 3), np.nan), "NaN"),
     (np.c_[np.random.default_rng(0).random((500, 2)), np.zeros(500)], "coplanar"),
     (np.zeros((200, 2)), "shape"),
+    (np.repeat(np.eye(4, 3), 50, axis=0), "normals cannot be estimated"),  # 4 positions, 50 copies each
 ])
 def test_bad_clouds(geometry, match):
     with pytest.raises(ValueError, match=match):

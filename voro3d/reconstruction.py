@@ -264,13 +264,18 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
 
     n = points.shape[0]
     k = min(k, n - 1)
+    distances, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
+    extent = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
+    stacked = int((distances[:, -1] <= 1e-9 * extent).sum())
+    if stacked > 0.01 * n:
+        raise ValueError(f"normals cannot be estimated: {stacked} of {n} points have all {k} neighbours at "
+                         "their own position (duplicated points), so no plane fits them")
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(k))
     normals = np.asarray(cloud.normals).copy()
     if not np.isfinite(normals).all() or (np.linalg.norm(normals, axis=1) < 0.5).mean() > 0.01:
         raise ValueError("normals could not be estimated (degenerate neighbourhoods)")
 
-    _, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
     rows = np.repeat(np.arange(n), k)
     cols = neighbours[:, 1:].reshape(-1)
     keep = cols < n  # duplicate points can leave a row short

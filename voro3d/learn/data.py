@@ -2,7 +2,8 @@
 
 Nothing is downloaded. :func:`cad_shape` builds ABC-like parts with manifold3d booleans (boxes,
 chamfered and rounded boxes, cylinders, cones, spheres, tori, tubes and prisms, unions of a few
-of them minus holes, pockets and slots), deterministic given a seed. :func:`build_dataset` puts
+of them minus holes, pockets and slots), :func:`organic_shape` smooth bumpy bodies (the level
+set of a sum of stretched Gaussians with ripples), both deterministic given a seed. :func:`build_dataset` puts
 each shape (or each closed mesh of an optional folder) in the fit frame and caches what training
 needs as one ``.npz`` per shape:
 
@@ -32,7 +33,9 @@ log = logging.getLogger(__name__)
 CIRCLE_SEGMENTS = 64
 # A part thinner than this fraction of its bounding box is mostly degenerate at 32^3; redraw it.
 MIN_FILL = 0.02
-DATASET_VERSION = 1
+DATASET_VERSION = 2
+# Nodes per axis of the field an organic shape is meshed from: finer than a 64^3 fit grid.
+ORGANIC_RESOLUTION = 112
 
 
 def _rotation(rng: np.random.Generator, *, axis_aligned: bool) -> np.ndarray:
@@ -165,6 +168,50 @@ def cad_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64)
 
 
+def organic_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A random smooth, bumpy body, like the scanned and sculpted meshes of Thingi or animals.
+
+    The level set ``f = 1/2`` of ``f(x) = sum_i exp(-|A_i (x - c_i)|^2)`` over two to eight
+    randomly stretched and rotated Gaussians, rippled by three random plane waves, meshed by
+    Marching Cubes on a ``ORGANIC_RESOLUTION^3`` grid. Bodies that come out thinner than
+    ``MIN_FILL`` of their bounding box are redrawn from the same generator.
+
+    Parameters
+    ----------
+    seed : int
+
+    Returns
+    -------
+    vertices : (v, 3) float64
+        Arbitrary units (about unit size).
+    triangles : (t, 3) int64
+        Closed and outward-oriented (each component).
+    """
+    from ..baselines import marching_cubes
+    from ..sampling import grid_nodes
+
+    rng = np.random.default_rng(seed)
+    nodes = grid_nodes(ORGANIC_RESOLUTION) * 1.6  # room around the blobs: the level set never meets the border
+    while True:
+        field = np.zeros(nodes.shape[0])
+        for _ in range(rng.integers(2, 9)):
+            centre = rng.uniform(-0.5, 0.5, 3)
+            stretch = _rotation(rng, axis_aligned=False) * (1.0 / rng.uniform(0.12, 0.45, 3))[:, None]
+            field += np.exp(-np.square((nodes - centre) @ stretch.T).sum(axis=1))
+        for _ in range(3):
+            wave = rng.normal(size=3)
+            wave *= rng.uniform(6.0, 20.0) / np.linalg.norm(wave)
+            field += rng.uniform(0.0, 0.06) * np.sin(nodes @ wave + rng.uniform(0, 2 * np.pi))
+        sdf = (0.5 - field).reshape((ORGANIC_RESOLUTION,) * 3)
+        if sdf.min() >= 0 or (sdf[[0, -1]] <= 0).any() or (sdf[:, [0, -1]] <= 0).any() or (sdf[..., [0, -1]] <= 0).any():
+            continue
+        vertices, triangles = marching_cubes(sdf)
+        extent = vertices.max(axis=0) - vertices.min(axis=0)
+        if (sdf < 0).mean() * 3.2**3 < MIN_FILL * np.prod(extent):
+            continue
+        return vertices, triangles
+
+
 @dataclass(frozen=True)
 class DatasetSpec:
     """What :func:`build_dataset` caches; a cache is reused only when the spec matches."""
@@ -174,10 +221,11 @@ class DatasetSpec:
     seed: int
     n_samples: int
     mesh_dir: str | None
+    n_organic: int = 0
 
     def as_dict(self) -> dict:
-        return {"version": DATASET_VERSION, "n_shapes": self.n_shapes, "grids": list(self.grids),
-                "seed": self.seed, "n_samples": self.n_samples, "mesh_dir": self.mesh_dir}
+        return {"version": DATASET_VERSION, "n_shapes": self.n_shapes, "n_organic": self.n_organic,
+                "grids": list(self.grids), "seed": self.seed, "n_samples": self.n_samples, "mesh_dir": self.mesh_dir}
 
 
 def _shape_record(vertices, triangles, grids, n_samples, seed) -> dict:
@@ -194,11 +242,12 @@ def _shape_record(vertices, triangles, grids, n_samples, seed) -> dict:
 
 
 def build_dataset(out_dir, n_shapes: int, grid=(32, 64), seed: int = 0, *, n_samples: int = 50_000,
-                  mesh_dir=None) -> list[Path]:
+                  mesh_dir=None, n_organic: int = 0) -> list[Path]:
     """Generate (or reuse) the cached training set in ``out_dir``.
 
     Shape ``i`` is ``cad_shape`` of a seed derived from ``(seed, i)``, so a cache can be grown
     or rebuilt after a crash and every file stays the same; files already present are kept.
+    ``n_organic`` :func:`organic_shape` bodies follow, with seeds from ``(seed, "organic")``.
     Closed meshes from ``mesh_dir`` follow the generated shapes (sorted by name); open or
     unreadable ones are skipped with a warning, since no inside test exists for them.
 
@@ -216,6 +265,8 @@ def build_dataset(out_dir, n_shapes: int, grid=(32, 64), seed: int = 0, *, n_sam
         Surface samples per shape.
     mesh_dir : str or os.PathLike, optional, keyword-only
         A folder of real meshes to add (any :data:`voro3d.io.MESH_SUFFIXES`).
+    n_organic : int, keyword-only
+        Generated organic bodies, ``>= 0``.
 
     Returns
     -------
@@ -234,13 +285,15 @@ def build_dataset(out_dir, n_shapes: int, grid=(32, 64), seed: int = 0, *, n_sam
     n_shapes = positive_int(n_shapes, "n_shapes", minimum=0)
     grids = tuple(sorted({positive_int(g, "grid", minimum=4) for g in np.atleast_1d(grid).tolist()}))
     n_samples = positive_int(n_samples, "n_samples")
+    n_organic = positive_int(n_organic, "n_organic", minimum=0)
     mesh_files = []
     if mesh_dir is not None:
         mesh_dir = Path(mesh_dir)
         if not mesh_dir.is_dir():
             raise FileNotFoundError(f"mesh_dir {mesh_dir} is not a folder")
         mesh_files = sorted(p for p in mesh_dir.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
-    spec = DatasetSpec(n_shapes, grids, int(seed), n_samples, None if mesh_dir is None else str(mesh_dir.resolve()))
+    spec = DatasetSpec(n_shapes, grids, int(seed), n_samples, None if mesh_dir is None else str(mesh_dir.resolve()),
+                       n_organic)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     index = out_dir / "index.json"
@@ -251,16 +304,23 @@ def build_dataset(out_dir, n_shapes: int, grid=(32, 64), seed: int = 0, *, n_sam
 
     seeds = np.random.SeedSequence(seed).generate_state(n_shapes + len(mesh_files), dtype=np.uint32)
     files = []
+    organic_seeds = np.random.SeedSequence([seed, 0x0A6]).generate_state(n_organic, dtype=np.uint32)
     jobs = [(f"shape_{i:05d}.npz", i, None) for i in range(n_shapes)]
+    jobs += [(f"organic_{i:05d}.npz", i, "organic") for i in range(n_organic)]
     jobs += [(f"mesh_{path.stem}.npz", n_shapes + j, path) for j, path in enumerate(mesh_files)]
     for name, i, path in tqdm(jobs, desc="shapes", unit="shape", leave=False):
         target = out_dir / name
         if not target.is_file():
             try:
-                vertices, triangles = cad_shape(int(seeds[i])) if path is None else mesh_arrays(load_mesh(path))
-                record = _shape_record(vertices, triangles, grids, n_samples, int(seeds[i]))
-            except ValueError as error:
                 if path is None:
+                    vertices, triangles, shape_seed = *cad_shape(int(seeds[i])), int(seeds[i])
+                elif path == "organic":
+                    vertices, triangles, shape_seed = *organic_shape(int(organic_seeds[i])), int(organic_seeds[i])
+                else:
+                    vertices, triangles, shape_seed = *mesh_arrays(load_mesh(path)), int(seeds[i])
+                record = _shape_record(vertices, triangles, grids, n_samples, shape_seed)
+            except ValueError as error:
+                if not isinstance(path, Path):
                     raise
                 log.warning("skipping %s: %s", path, error)
                 continue

@@ -40,7 +40,7 @@ DEFAULTS = {
     "run_dir": "runs/voromesh_sdf",
     "data": {"train_dir": "runs/voromesh_sdf/data/train", "val_dir": "runs/voromesh_sdf/data/val",
              "n_train": 360, "n_val": 16, "train_seed": 7, "val_seed": 1001, "grids": [32, 64],
-             "n_samples": 50_000, "mesh_dir": None},
+             "n_samples": 50_000, "mesh_dir": None, "n_organic": 0},
     "model": {"width": 16, "coarse_width": 32, "head_width": 64, "truncation": 3.0},
     "near": 1.0,
     "band": BAND,
@@ -347,7 +347,8 @@ def train_main(config_path) -> Path:
     data = config["data"]
     grids = [int(g) for g in data["grids"]]
     train = ShapeSet(build_dataset(data["train_dir"], data["n_train"], grids, data["train_seed"],
-                                   n_samples=data["n_samples"], mesh_dir=data["mesh_dir"]))
+                                   n_samples=data["n_samples"], mesh_dir=data["mesh_dir"],
+                                   n_organic=data["n_organic"]))
     validation = _Validation(ShapeSet(build_dataset(data["val_dir"], data["n_val"], grids, data["val_seed"],
                                                     n_samples=data["n_samples"])),
                              grids, config["validation"]["n_detail"], config["validation"]["cd_points"])
