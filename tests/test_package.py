@@ -90,10 +90,10 @@ def test_cli_reconstruct_point_cloud(tmp_path):
 
     points, normals = sample_surface(example_mesh("torus"), 5000, seed=0)
     np.save(tmp_path / "cloud.npy", np.hstack([points, normals]))
-    for method in ("fit", "learned"):
-        out = tmp_path / f"{method}.ply"
+    for method, extra in (("fit", []), ("learned", []), ("fit", ["--denoise"])):
+        out = tmp_path / f"{method}{len(extra)}.ply"
         assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(out), "--grid", "16",
-                     "--steps", "40", "--method", method, "-q"]) == 0
+                     "--steps", "40", "--method", method, "-q", *extra]) == 0
         assert voro3d.check_watertight(voro3d.load_mesh(out, weld=False), self_intersection=False).watertight
 
 

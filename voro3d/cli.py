@@ -62,7 +62,7 @@ def _reconstruct(args) -> None:
     from .reconstruction import reconstruct
 
     mesh = reconstruct(args.input, args.grid, method=args.method, steps=args.steps, seed=args.seed,
-                       progress=not args.quiet)
+                       denoise=args.denoise, progress=not args.quiet)
     save_mesh(mesh, args.output)
     _maybe_render(args, [mesh], [f"VoroMesh ({args.method}) {args.grid}^3"])
     _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
@@ -170,6 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     rebuild.add_argument("--method", choices=("fit", "learned"), default="fit")
     rebuild.add_argument("--steps", type=int, default=400)
     rebuild.add_argument("--seed", type=int, default=0)
+    rebuild.add_argument("--denoise", action="store_true",
+                         help="project noisy points onto local planes about one grid step wide")
     rebuild.set_defaults(run=_reconstruct)
 
     train = commands.add_parser("train", help="train the SDF -> generators network (needs torch)")

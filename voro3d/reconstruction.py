@@ -18,10 +18,13 @@ MIN_POINTS = 100
 METHODS = ("fit", "learned")
 # Neighbours for normal estimation, orientation and point areas.
 NEIGHBOURS = 16
+# Neighbours of a support point that span about one grid step (the support is a quarter step
+# apart): the plane fits of `denoise`, whose normals must not follow the noise.
+DENOISE_NEIGHBOURS = 48
 
 
 def reconstruct(geometry, grid: int = 32, *, method: str = "fit", steps: int = 400, seed: int = 0,
-                device: str = "cpu", progress: bool = False):
+                device: str = "cpu", denoise: bool = False, progress: bool = False):
     """Watertight VoroMesh surface of a point cloud or mesh.
 
     Parameters
@@ -37,6 +40,12 @@ def reconstruct(geometry, grid: int = 32, *, method: str = "fit", steps: int = 4
         Direct optimisation (seconds) or the shipped ONNX network (fast, needs no torch).
     steps, seed, device, progress
         Passed to the fit (``method="fit"``).
+    denoise : bool
+        For noisy point clouds: move every point onto the plane fitted to its surroundings,
+        about one grid step wide (:func:`project_to_planes`). At 0.5-1% noise it cut the
+        Chamfer distance 6-19 times (bunny and fandisk at 32^3); on clean clouds it rounds
+        curved surfaces and sharp edges (CD about 2.5 times higher), so it is off by default.
+        Ignored for meshes.
 
     Returns
     -------
@@ -63,7 +72,7 @@ def reconstruct(geometry, grid: int = 32, *, method: str = "fit", steps: int = 4
         return predict_mesh(data, grid).to_open3d()
     points, normals = data
     return _reconstruct_points(points, normals, grid, method=method, steps=steps, seed=seed, device=device,
-                               progress=progress).to_open3d()
+                               denoise=denoise, progress=progress).to_open3d()
 
 
 class VoroMeshStage:
@@ -78,11 +87,11 @@ class VoroMeshStage:
     """
 
     def __init__(self, grid: int = 32, *, method: str = "fit", steps: int = 400, seed: int = 0,
-                 device: str = "cpu", progress: bool = False):
+                 device: str = "cpu", denoise: bool = False, progress: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         self.options = dict(grid=positive_int(grid, "grid", minimum=4), method=method, steps=steps, seed=seed,
-                            device=device, progress=progress)
+                            device=device, denoise=bool(denoise), progress=progress)
 
     def __call__(self, geometry):
         return reconstruct(geometry, **self.options)
@@ -91,13 +100,16 @@ class VoroMeshStage:
         return "VoroMeshStage(" + ", ".join(f"{k}={v!r}" for k, v in self.options.items()) + ")"
 
 
-def _reconstruct_points(points, normals, grid, *, method, steps, seed, device, progress):
+def _reconstruct_points(points, normals, grid, *, method, steps, seed, device, denoise, progress):
     from .io import fit_frame
     from .sampling import point_areas, point_winding_number
 
     frame = fit_frame(points)
     framed = frame.apply(points)
-    support, support_normals = inside_support(framed, normals, grid)
+    support, support_normals = inside_support(framed, normals, grid,
+                                              k=DENOISE_NEIGHBOURS if denoise else NEIGHBOURS)
+    if denoise:
+        framed, support = project_to_planes(framed, support, support_normals, k=DENOISE_NEIGHBOURS)
     areas = point_areas(support, k=NEIGHBOURS)
 
     def inside(queries):
@@ -120,7 +132,7 @@ def _reconstruct_points(points, normals, grid, *, method, steps, seed, device, p
     return shape
 
 
-def inside_support(points, normals, grid: int):
+def inside_support(points, normals, grid: int, *, k: int = NEIGHBOURS):
     """The oriented points that decide inside and outside: the cloud averaged over small voxels.
 
     Each voxel of a quarter of the grid spacing keeps the mean of its points (and of their
@@ -136,6 +148,8 @@ def inside_support(points, normals, grid: int):
     normals : (n, 3) float64 or None
         Unit outward normals, or None to estimate them.
     grid : int
+    k : int
+        Neighbours of the plane fits when normals are estimated.
 
     Returns
     -------
@@ -154,11 +168,46 @@ def inside_support(points, normals, grid: int):
         support = points
         averaged = cloud
     if normals is None:
-        return support, estimate_normals(support)
+        return support, estimate_normals(support, k=k)
     support_normals = np.asarray(averaged.normals)
     length = np.linalg.norm(support_normals, axis=1)
     keep = length > 1e-6  # opposite normals in one voxel cancel: such a point carries no side
     return support[keep], support_normals[keep] / length[keep, None]
+
+
+def project_to_planes(points, support, support_normals, *, k: int = DENOISE_NEIGHBOURS):
+    """Points moved onto local planes about one grid step wide: noise removal at the grid's scale.
+
+    Each support point gets the plane through the mean of its ``k`` nearest support points
+    that face the same way (normals within 60 degrees, so the two sides of a thin wall do not
+    average into one), with its own normal; support points and the points nearest to each are
+    projected onto it. With the support a quarter grid step apart, 48 neighbours span about one
+    grid step, the smallest detail a VoroMesh of that grid shows.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    support, support_normals : (m, 3) float64
+        From :func:`inside_support`, whose spacing sets the scale.
+    k : int
+
+    Returns
+    -------
+    points, support : (n, 3), (m, 3) float64
+        Projected.
+    """
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(support)
+    _, neighbours = tree.query(support, k=min(k, support.shape[0]), workers=-1)
+    weights = (np.einsum("mkj,mj->mk", support_normals[neighbours], support_normals) > 0.5).astype(float)
+    centres = np.einsum("mk,mkj->mj", weights, support[neighbours]) / weights.sum(axis=1, keepdims=True)
+
+    def onto_planes(x, owner):
+        return x - np.einsum("ij,ij->i", x - centres[owner], support_normals[owner])[:, None] * support_normals[owner]
+
+    _, owner = tree.query(points, workers=-1)
+    return onto_planes(points, owner), onto_planes(support, np.arange(support.shape[0]))
 
 
 def _cloud_sdf(points, inside, grid):
