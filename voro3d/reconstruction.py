@@ -358,4 +358,51 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
     outward = np.bincount(piece, weights=np.einsum("ij,ij->i", normals, points - points.mean(axis=0)),
                           minlength=pieces)
     normals[outward[piece] < 0] *= -1.0
+    # A sharp edge or a wall thinner than the plane fits can still flip a whole face: cut the
+    # tree where normals turn or the edge leaves the tangent plane, and let each smooth patch
+    # vote on which side of it is open space.
+    step = points[tree.col] - points[tree.row]
+    step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
+    smooth = ((np.einsum("ij,ij->i", normals[tree.row], normals[tree.col]) > 0.95)
+              & (np.abs(np.einsum("ij,ij->i", step, normals[tree.row])) < 0.3)
+              & (np.abs(np.einsum("ij,ij->i", step, normals[tree.col])) < 0.3))
+    patches, patch = connected_components(coo_matrix((np.ones(int(smooth.sum())), (tree.row[smooth], tree.col[smooth])),
+                                                     shape=(n, n)), directed=False)
+    votes = np.bincount(patch, weights=_outside_votes(points, normals, float(np.median(distances[:, -1]))),
+                        minlength=patches)
+    # Only a clear verdict flips: near thin walls most probes cannot tell, and a few can mislead.
+    flip = votes < -0.25 * np.bincount(patch, minlength=patches)
+    normals[flip[patch]] *= -1.0
     return normals
+
+
+def _outside_votes(points, normals, voxel):
+    """+1 where a point's normal points to open space and its back to enclosed space, -1 the other
+    way round, 0 when that cannot be told (both sides open: a thin wall, or a cloud with holes).
+
+    Open space is the empty voxels connected to the border of the grid, with the voxels holding
+    points grown by one so that the sampled surface has no gaps: ``voxel`` about the distance to
+    the 16th neighbour, so that a surface voxel holds about five points. Each point probes three
+    voxels along its normal, both ways.
+    """
+    from scipy import ndimage
+
+    low = points.min(axis=0)
+    extent = points.max(axis=0) - low
+    voxel = max(voxel, float(extent.max()) / 256)
+    if voxel <= 0:
+        return np.zeros(points.shape[0])
+    shape = np.ceil(extent / voxel).astype(int) + 9  # room for the probes beyond the cloud
+    occupied = np.zeros(shape, bool)
+    occupied[tuple(np.floor((points - low) / voxel).astype(int).T + 4)] = True
+    occupied = ndimage.binary_dilation(occupied, iterations=1)
+    labels, _ = ndimage.label(~occupied)
+    border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
+                                       labels[..., [0, -1]].ravel()]))
+    open_space = np.isin(labels, border[border > 0])
+
+    def is_open(queries):
+        cells = np.clip(np.floor((queries - low) / voxel).astype(int) + 4, 0, np.array(shape) - 1)
+        return open_space[tuple(cells.T)]
+
+    return is_open(points + 3 * voxel * normals).astype(float) - is_open(points - 3 * voxel * normals)
