@@ -17,9 +17,11 @@ normals estimated and oriented on all the points by the same code
 * Speed of the point-cloud parts at 10^5 points: normal estimation + orientation, point areas,
   and the winding number at 10^5 query points.
 
-Writes ``benchmarks/results/pointcloud.{md,json,png}``.
+Writes ``benchmarks/results/pointcloud.{md,json,png}``. The two parts can run in two processes
+(``--part main``, ``--part noise --reverse --out OTHER``) and be joined with ``--merge``.
 
     python benchmarks/bench_pointcloud.py [--grid 64] [--noise-grid 32] [--points 100000] [--limit N]
+    python benchmarks/bench_pointcloud.py --merge A.json B.json [--out OUT]
 """
 from __future__ import annotations
 
@@ -283,6 +285,21 @@ def picture(picture_dir: Path, main, folder: Path, out_png: Path):
         sheet.save(out_png)
 
 
+def merge(sources, out: Path, folder: Path):
+    """One table from the JSON results of runs over parts of the work; a later row replaces an
+    earlier one of the same shape (and condition)."""
+    runs = [json.loads(Path(source).read_text()) for source in sources]
+    main_rows = {r["shape"]: r for run in runs for r in run["main"]}
+    noise = {(r["shape"], r["condition"], r["denoise"]): r for run in runs for r in run["noise"]}
+    meta = dict(runs[0]["meta"], load_after=runs[-1]["meta"].get("load_after", ""))
+    timing = next((run["speed"] for run in runs if run["speed"]), None)
+    main_rows = [main_rows[k] for k in sorted(main_rows)]
+    noise = [noise[k] for k in sorted(noise)]
+    write(out, meta, main_rows, noise, timing)
+    picture(ROOT / "out" / "bench_pointcloud", main_rows, folder, out.with_suffix(".png"))
+    print(f"wrote {out.with_suffix('.md')}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=Path, default=DEV if DEV.is_dir() else None)
@@ -291,8 +308,15 @@ def main():
     parser.add_argument("--points", type=int, default=100_000)
     parser.add_argument("--limit", type=int, default=None, help="first N meshes only")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
+    parser.add_argument("--part", choices=("all", "main", "noise"), default="all")
+    parser.add_argument("--reverse", action="store_true", help="shapes in reverse order")
+    parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running")
     args = parser.parse_args()
     import multiprocessing
+
+    if args.merge:
+        merge(args.merge, args.out, args.folder)
+        return
 
     from voro3d.io import MESH_SUFFIXES
 
@@ -306,6 +330,8 @@ def main():
         for name in example_names():
             save_mesh(example_mesh(name), args.folder / f"{name}.ply")
     paths = sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)[: args.limit]
+    if args.reverse:
+        paths.reverse()
     picture_dir = ROOT / "out" / "bench_pointcloud"
     picture_dir.mkdir(parents=True, exist_ok=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -315,7 +341,7 @@ def main():
     timing = speed(next((p for p in paths if p.name == "organic_bunny.off"), paths[0]))
     print(json.dumps(timing), flush=True)
     main_rows, noise = [], []
-    for path in paths:
+    for path in paths if args.part in ("all", "main") else []:
         row = main_row(path, args.grid, args.points, picture_dir)
         main_rows.append(row)
         print(json.dumps({k: row.get(k) for k in ("shape", "status", "error")} |
@@ -323,7 +349,7 @@ def main():
                           for m in ("cloud", "mesh", "poisson") if m in row}), flush=True)
         meta["load_after"] = load()
         write(args.out, meta, main_rows, noise, timing)
-    for path in paths:
+    for path in paths if args.part in ("all", "noise") else []:
         rows = noise_rows(path, args.noise_grid, args.points)
         noise += rows
         print(json.dumps([{k: r.get(k) for k in ("shape", "condition", "denoise", "chamfer_x1e5", "watertight", "error")}
