@@ -101,7 +101,7 @@ def _poisson(points, normals, target_vertices, normals_seconds):
     return mesh, normals_seconds + seconds, depth
 
 
-def main_row(path, grid, n_points, picture_dir):
+def main_row(path, grid, n_points, picture_dir, fitted=None):
     from voro3d import fit
     from voro3d.io import load_mesh, save_mesh
     from voro3d.reconstruction import estimate_normals
@@ -122,12 +122,15 @@ def main_row(path, grid, n_points, picture_dir):
         row["cloud"] = dict(_score(meshes["cloud"], source), seconds=seconds)
     except (ValueError, RuntimeError) as error:
         row["cloud"] = dict(error=f"{type(error).__name__}: {error}", watertight=False)
-    try:
-        start = time.perf_counter()
-        meshes["mesh"] = fit(source, grid, progress=False).to_open3d()
-        row["mesh"] = dict(_score(meshes["mesh"], source), seconds=time.perf_counter() - start)
-    except ValueError as error:  # an open input mesh has no inside: only the cloud methods run
-        row["mesh"] = dict(error=str(error))
+    if fitted and path.name in fitted:  # the same fit (same code, grid and seed) already scored
+        row["mesh"] = dict(fitted[path.name], reused=True)
+    else:
+        try:
+            start = time.perf_counter()
+            meshes["mesh"] = fit(source, grid, progress=False).to_open3d()
+            row["mesh"] = dict(_score(meshes["mesh"], source), seconds=time.perf_counter() - start)
+        except ValueError as error:  # an open input mesh has no inside: only the cloud methods run
+            row["mesh"] = dict(error=str(error))
     target = len(meshes["cloud"].vertices) if "cloud" in meshes else 30_000
     meshes["poisson"], seconds, depth = _poisson(points, normals, target, normals_seconds)
     row["poisson"] = dict(_score(meshes["poisson"], source), seconds=seconds, depth=depth)
@@ -137,14 +140,14 @@ def main_row(path, grid, n_points, picture_dir):
     return dict(row, status="ok")
 
 
-def noise_rows(path, grid, n_points):
+def noise_rows(path, grid, n_points, denoise_options=(False, True)):
     from voro3d.io import load_mesh
 
     source = load_mesh(path)
     rows = []
     for name, noise, keep in CONDITIONS:
         points = sample_cloud(source, n_points, noise=noise, keep=keep)
-        for denoise in (False, True):
+        for denoise in denoise_options:
             row = dict(shape=path.name, grid=grid, condition=name, denoise=denoise)
             try:
                 mesh, seconds = _voromesh_cloud(points, grid, denoise)
@@ -310,7 +313,12 @@ def main():
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--part", choices=("all", "main", "noise"), default="all")
     parser.add_argument("--reverse", action="store_true", help="shapes in reverse order")
+    parser.add_argument("--denoise", choices=("both", "off", "on"), default="both",
+                        help="robustness rows without and/or with denoise=True")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running")
+    parser.add_argument("--mesh-fit-from", type=Path,
+                        help="bench_fit.py JSON whose VoroMesh rows (same grid) stand for the mesh fit instead of "
+                             "fitting again; the fit is deterministic, so only its seconds differ")
     args = parser.parse_args()
     import multiprocessing
 
@@ -340,9 +348,13 @@ def main():
                 load_before=load(), points=args.points, grid=args.grid, noise_grid=args.noise_grid)
     timing = speed(next((p for p in paths if p.name == "organic_bunny.off"), paths[0]))
     print(json.dumps(timing), flush=True)
+    fitted = None
+    if args.mesh_fit_from:
+        fitted = {r["shape"]: r["voromesh"] for r in json.loads(args.mesh_fit_from.read_text())["rows"]
+                  if r["grid"] == args.grid and r["status"] == "ok"}
     main_rows, noise = [], []
     for path in paths if args.part in ("all", "main") else []:
-        row = main_row(path, args.grid, args.points, picture_dir)
+        row = main_row(path, args.grid, args.points, picture_dir, fitted)
         main_rows.append(row)
         print(json.dumps({k: row.get(k) for k in ("shape", "status", "error")} |
                          {m: {k: row[m].get(k) for k in ("chamfer_x1e5", "f1", "watertight", "seconds", "error")}
@@ -350,7 +362,8 @@ def main():
         meta["load_after"] = load()
         write(args.out, meta, main_rows, noise, timing)
     for path in paths if args.part in ("all", "noise") else []:
-        rows = noise_rows(path, args.noise_grid, args.points)
+        rows = noise_rows(path, args.noise_grid, args.points,
+                          {"both": (False, True), "off": (False,), "on": (True,)}[args.denoise])
         noise += rows
         print(json.dumps([{k: r.get(k) for k in ("shape", "condition", "denoise", "chamfer_x1e5", "watertight", "error")}
                           for r in rows]), flush=True)

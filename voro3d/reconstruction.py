@@ -106,8 +106,11 @@ def _reconstruct_points(points, normals, grid, *, method, steps, seed, device, d
 
     frame = fit_frame(points)
     framed = frame.apply(points)
-    support, support_normals = inside_support(framed, normals, grid,
-                                              k=DENOISE_NEIGHBOURS if denoise else NEIGHBOURS)
+    if normals is None and not denoise:
+        # Plane fits over the raw points: on the sparser support a sharp rim or a thin part can
+        # mislead the orientation (thingi32_75655 and 75656 flipped there, not here).
+        normals = estimate_normals(framed)
+    support, support_normals = inside_support(framed, normals, grid, k=DENOISE_NEIGHBOURS)
     if denoise:
         framed, support = project_to_planes(framed, support, support_normals, k=DENOISE_NEIGHBOURS)
     areas = point_areas(support, k=NEIGHBOURS)
@@ -136,9 +139,9 @@ def inside_support(points, normals, grid: int, *, k: int = NEIGHBOURS):
     """The oriented points that decide inside and outside: the cloud averaged over small voxels.
 
     Each voxel of a quarter of the grid spacing keeps the mean of its points (and of their
-    normals, when the cloud has them; otherwise normals are estimated on the averaged points).
-    Averaging cancels noise that would scramble plane fits over 16 raw neighbours, evens out
-    the density the winding number's area weights assume, and makes it cheaper; a quarter of a
+    normals, when given; otherwise normals are estimated on the averaged points, which
+    ``denoise`` wants: plane fits about a grid step wide, above the noise). Averaging evens out
+    the density the winding number's area weights assume and makes it cheaper; a quarter of a
     grid step keeps detail finer than the mesh can show.
 
     Parameters
