@@ -166,33 +166,20 @@ PICTURED = ("organic_bunny.off", "cad_fandisk.obj", "organic_armadillo.obj", "ca
 
 def picture(picture_dir: Path, rows, out_png: Path, count=3):
     """One row per shape (input, VoroMesh, MC, DC at one camera), rows stacked into one PNG."""
-    import tempfile
-
-    from PIL import Image
+    from figures import render_rows
 
     from voro3d.io import load_mesh
-    from voro3d.render import render_meshes
 
     ok = [r for r in rows if r["status"] == "ok" and all("chamfer_x1e5" in r[m] for m in METHODS)]
     ok = sorted(ok, key=lambda r: (r["shape"] not in PICTURED, r["grid"]))[:count]
-    with tempfile.TemporaryDirectory() as folder:
-        images = []
-        for index, r in enumerate(ok):
-            stem = Path(r["shape"]).stem
-            source = Path(rows_folder(r)) / r["shape"]
-            meshes = [load_mesh(source)] + [
-                load_mesh(picture_dir / f"{stem}_{r['grid']}_{m}.ply", weld=False) for m in METHODS]
-            titles = [f"{stem} (input)"] + [f"{m} {r['grid']}^3: CD {r[m]['chamfer_x1e5']:.2f}" for m in METHODS]
-            path = Path(folder) / f"{index}.png"
-            render_meshes(meshes, path, titles=titles, size=(360, 300))
-            images.append(Image.open(path).convert("RGB"))
-        if images:
-            sheet = Image.new("RGB", (max(i.width for i in images), sum(i.height for i in images)), "white")
-            top = 0
-            for image in images:
-                sheet.paste(image, (0, top))
-                top += image.height
-            sheet.save(out_png)
+    figure = []
+    for r in ok:
+        stem = Path(r["shape"]).stem
+        meshes = [load_mesh(Path(rows_folder(r)) / r["shape"])] + [
+            load_mesh(picture_dir / f"{stem}_{r['grid']}_{m}.ply", weld=False) for m in METHODS]
+        titles = [f"{stem} (input)"] + [f"{m} {r['grid']}^3: CD {r[m]['chamfer_x1e5']:.2f}" for m in METHODS]
+        figure.append((meshes, titles))
+    render_rows(figure, out_png)
 
 
 def rows_folder(row) -> Path:

@@ -259,33 +259,21 @@ def write(out: Path, meta, main, noise, timing):
 
 def picture(picture_dir: Path, main, folder: Path, out_png: Path):
     """Input, VoroMesh from the cloud, Poisson: one row per pictured shape."""
-    import tempfile
-
-    from PIL import Image
+    from figures import render_rows
 
     from voro3d.io import load_mesh
-    from voro3d.render import render_meshes
 
     rows = [r for r in main if r["shape"] in PICTURED and r["status"] == "ok"
             and (picture_dir / f"{Path(r['shape']).stem}_cloud.ply").exists()]
-    images = []
-    with tempfile.TemporaryDirectory() as scratch:
-        for index, r in enumerate(rows):
-            stem = Path(r["shape"]).stem
-            meshes = [load_mesh(folder / r["shape"]), load_mesh(picture_dir / f"{stem}_cloud.ply", weld=False),
-                      load_mesh(picture_dir / f"{stem}_poisson.ply", weld=False)]
-            titles = [f"{stem} (input)", f"VoroMesh from cloud {r['grid']}^3: CD {r['cloud']['chamfer_x1e5']:.2f}",
-                      f"Poisson depth {r['poisson']['depth']}: CD {r['poisson']['chamfer_x1e5']:.2f}"]
-            path = Path(scratch) / f"{index}.png"
-            render_meshes(meshes, path, titles=titles, size=(360, 300))
-            images.append(Image.open(path).convert("RGB"))
-    if images:
-        sheet = Image.new("RGB", (max(i.width for i in images), sum(i.height for i in images)), "white")
-        top = 0
-        for image in images:
-            sheet.paste(image, (0, top))
-            top += image.height
-        sheet.save(out_png)
+    figure = []
+    for r in rows:
+        stem = Path(r["shape"]).stem
+        meshes = [load_mesh(folder / r["shape"]), load_mesh(picture_dir / f"{stem}_cloud.ply", weld=False),
+                  load_mesh(picture_dir / f"{stem}_poisson.ply", weld=False)]
+        titles = [f"{stem} (input)", f"VoroMesh from cloud {r['grid']}^3: CD {r['cloud']['chamfer_x1e5']:.2f}",
+                  f"Poisson depth {r['poisson']['depth']}: CD {r['poisson']['chamfer_x1e5']:.2f}"]
+        figure.append((meshes, titles))
+    render_rows(figure, out_png)
 
 
 def merge(sources, out: Path, folder: Path):
