@@ -1,11 +1,13 @@
 """Throughput of ``voro3d batch``: 1 vs 2 local workers, and the Ray engine's overhead and outputs.
 
-The smallest watertight dev meshes (``shared/data/dev``; ``thingi32_96481`` is open and left out)
-are linked into a temporary input folder and fitted at grid 32 (``--steps``, default the full 400)
-three ways, each into a fresh output folder:
+The watertight dev meshes (``shared/data/dev``; ``thingi32_96481`` is open and left out; ``--shapes``
+takes the smallest few) are linked into a temporary input folder and fitted at grid 32 (``--steps``,
+default the full 400) four ways, each into a fresh output folder:
 
-* ``local, 1 worker`` and ``local, 2 workers``: :func:`voro3d.batch.run_batch` end to end, worker
-  start-up (spawn, imports, warm-up) included; throughput is shapes per wall-clock second.
+* ``local, 1 worker`` and ``local, 2 workers`` (one thread and one CPU each, the default):
+  :func:`voro3d.batch.run_batch` end to end, worker start-up (spawn, imports, warm-up) included;
+  throughput is shapes per wall-clock second.
+* ``local, 1 worker x 2 threads``: the other way to use two cores, for comparison.
 * ``ray, 2 workers``: a local Ray instance with 2 CPUs, started here first so that ``ray.init``
   is timed on its own; the overhead per shape is (Ray wall time - local wall time at 2 workers)
   / shapes. Outputs are compared byte for byte with the local engine's.
@@ -18,7 +20,7 @@ three ways, each into a fresh output folder:
 The load average is recorded before and after every run: on a shared machine the speed-up
 depends on what else is running. Writes ``benchmarks/results/batch.{md,json}``.
 
-    python benchmarks/bench_batch.py [--shapes 8] [--steps 400] [--repeats 1] [--no-ray]
+    python benchmarks/bench_batch.py [--shapes N] [--steps 400] [--repeats 1] [--no-ray]
 """
 from __future__ import annotations
 
@@ -39,7 +41,8 @@ DEV = ROOT.parent / "shared" / "data" / "dev"
 OPEN_MESHES = {"thingi32_96481.obj"}
 
 
-def _subset(count: int) -> list[Path]:
+def _subset(count: int | None) -> list[Path]:
+    """The ``count`` smallest watertight dev meshes, or all of them."""
     from voro3d.io import MESH_SUFFIXES
 
     meshes = [path for path in DEV.iterdir() if path.suffix.lower() in MESH_SUFFIXES and path.name not in OPEN_MESHES]
@@ -103,7 +106,8 @@ def _run(label: str, inputs: Path, output: Path, **options) -> dict:
     rows = summary.rows
     ok = [row for row in rows if row["status"] == "ok"]
     record = {
-        "label": label, "engine": summary.engine, "workers": summary.workers, "shapes": len(rows), "ok": len(ok),
+        "label": label, "engine": summary.engine, "workers": summary.workers, "threads": options.get("threads", 1),
+        "shapes": len(rows), "ok": len(ok),
         "wall_seconds": summary.seconds, "throughput_shapes_per_s": len(rows) / summary.seconds,
         "mean_shape_seconds": statistics.fmean(row["seconds"] for row in ok) if ok else None,
         "mean_shape_cpu_seconds": statistics.fmean(row["cpu_seconds"] for row in ok) if ok else None,
@@ -114,7 +118,7 @@ def _run(label: str, inputs: Path, output: Path, **options) -> dict:
         "failures": {row["input"]: row["error"] for row in rows if row["status"] != "ok"},
         "digests": _digests(output, rows),
     }
-    print(f"{label:<20} {summary.seconds:7.1f} s  {record['throughput_shapes_per_s']:.3f} shapes/s  "
+    print(f"{label:<28} {summary.seconds:7.1f} s  {record['throughput_shapes_per_s']:.3f} shapes/s  "
           f"load {load_before[0]:.2f} -> {load_after[0]:.2f}", flush=True)
     return record
 
@@ -140,7 +144,7 @@ def _dispatch_seconds(scratch: Path, engine: str, sizes=(10, 60)) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--shapes", type=int, default=8, help="smallest watertight dev meshes to use (default 8)")
+    parser.add_argument("--shapes", type=int, help="use only the N smallest watertight dev meshes (default all)")
     parser.add_argument("--grid", type=int, default=32)
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--repeats", type=int, default=1, help="runs of the 1-worker / 2-worker pair")
@@ -167,6 +171,8 @@ def main() -> None:
                 _wait_until_quiet(args.quiet_load, args.max_wait)
                 runs.append(_run(f"local, {workers} worker{'s' * (workers > 1)}", inputs,
                                  scratch / f"local{workers}-{repeat}", workers=workers, **options))
+        _wait_until_quiet(args.quiet_load, args.max_wait)
+        runs.append(_run("local, 1 worker x 2 threads", inputs, scratch / "threads2", workers=1, threads=2, **options))
         dispatch = {"local": _dispatch_seconds(scratch, "local")}
         ray_init = None
         if not args.no_ray:
@@ -183,8 +189,9 @@ def main() -> None:
             finally:
                 ray.shutdown()
 
-    one = [run for run in runs if run["engine"] == "local" and run["workers"] == 1]
+    one = [run for run in runs if run["engine"] == "local" and run["workers"] == 1 and run["threads"] == 1]
     two = [run for run in runs if run["engine"] == "local" and run["workers"] == 2]
+    threaded = next(run for run in runs if run["threads"] == 2)
     speedups = [b["throughput_shapes_per_s"] / a["throughput_shapes_per_s"] for a, b in zip(one, two)]
     reference = two[0]["digests"]
     identical = {run["label"] + f" #{index}": run["digests"] == reference for index, run in enumerate(runs)}
@@ -193,9 +200,11 @@ def main() -> None:
     result = {
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "machine": {"platform": platform.platform(), "python": platform.python_version(),
-                    "cpus": len(os.sched_getaffinity(0)), "shared": True, "autogroup": _autogroup()},
+                    "cpus": len(os.sched_getaffinity(0)), "autogroup": _autogroup()},
         "meshes": [mesh.name for mesh in meshes], "grid": args.grid, "steps": args.steps,
         "runs": runs, "speedup_2_vs_1": speedups, "parallel_capacity": capacity,
+        "speedup_2_threads_vs_1": threaded["throughput_shapes_per_s"] / one[0]["throughput_shapes_per_s"],
+        "speedup_2_workers_vs_2_threads": two[0]["throughput_shapes_per_s"] / threaded["throughput_shapes_per_s"],
         "outputs_identical_to_local_2": identical,
         "ray_init_seconds": ray_init,
         "dispatch_seconds_per_shape": dispatch,
@@ -212,13 +221,14 @@ def _markdown(result: dict) -> str:
     lines = [
         "# voro3d batch throughput",
         "",
-        f"{len(result['meshes'])} smallest watertight dev meshes ({', '.join(result['meshes'])}), "
+        f"{len(result['meshes'])} watertight dev meshes ({', '.join(result['meshes'])}), "
         f"`--method fit --grid {result['grid']} --steps {result['steps']}`, seed 0. "
-        f"Taken {result['date']} on a **shared** {result['machine']['cpus']}-CPU machine "
-        f"({result['machine']['platform']}, Python {result['machine']['python']}) that other jobs were using: "
-        "the load averages show how busy it was, and the numbers move with it. Wall time is end to end: "
+        f"Taken {result['date']} on a {result['machine']['cpus']}-CPU machine "
+        f"({result['machine']['platform']}, Python {result['machine']['python']}); "
+        "the load averages show whether anything else ran (a quiet machine stays under about 1 "
+        "during a 1-worker run, 2 during a 2-worker run). Wall time is end to end: "
         "worker start-up (spawn, imports, a warm-up shape) included; the Ray run excludes `ray.init`, "
-        "timed on its own.",
+        "timed on its own. Workers have one thread and one CPU each unless the run says otherwise.",
         "",
         "| run | wall (s) | shapes/s | mean s per shape in its worker | mean CPU s per shape | cores obtained "
         "| mean peak RSS (MB) | load avg 1 min before -> after |",
@@ -242,9 +252,11 @@ def _markdown(result: dict) -> str:
                   "batch and its local workers are one session (Ray's processes run in sessions of their own). "
                   "While other sessions keep the CPUs busy, the batch gets one session's share however many "
                   "workers it runs, so the speed-up only shows on an otherwise idle machine."]
-    lines += ["", "A single worker already keeps more than one core busy at times (the kNN searches and the "
-              "inside tests are multi-threaded): where *mean CPU s per shape* exceeds *mean s per shape in its "
-              "worker*, so two workers on two cores can gain less than 2x even on an idle machine."]
+    lines += ["", f"Two threads in one worker instead of two workers: {result['speedup_2_threads_vs_1']:.2f}x the "
+              f"throughput of one single-threaded worker; two single-threaded workers get "
+              f"{result['speedup_2_workers_vs_2_threads']:.2f}x its throughput. A shape gains little from a second "
+              "thread (the fit is 400 small steps; only the kNN searches and the inside tests are multi-threaded), "
+              "which is why `--threads` defaults to 1."]
     if result["ray_init_seconds"] is not None:
         lines += ["", f"Ray: `ray.init` took {result['ray_init_seconds']:.1f} s; the overhead per shape over the "
                   f"local engine at 2 workers is {result['ray_overhead_seconds_per_shape']:+.2f} s (wall-time difference / "

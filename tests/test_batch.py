@@ -85,23 +85,35 @@ def test_batch_writes_one_watertight_mesh_and_row_per_shape(first_run):
     assert not [name for name in _files(output) if Path(name).name.startswith(".")]
 
 
-def test_workers_are_pinned_to_disjoint_shares_of_the_cpus(first_run):
+def test_workers_are_pinned_to_one_cpu_each_by_default(first_run):
     _, output, _ = first_run
     cpus = sorted(os.sched_getaffinity(0))
     shares = {tuple(row["worker_cpus"]) for row in _rows(output) if row["status"] == "ok"}
     if len(cpus) < 2:
         assert shares == {tuple(cpus)}  # more workers than CPUs: left unpinned
         return
-    assert all(len(share) == len(cpus) // 2 for share in shares)
+    assert all(len(share) == 1 for share in shares)
     assert all(set(a).isdisjoint(b) for a in shares for b in shares if a != b)
+
+
+def test_threads_give_a_worker_that_many_cpus(tmp_path):
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        pytest.skip("needs two CPUs to give one worker two")
+    inputs = _inputs(tmp_path / "in", names=("sphere",))
+    summary = run_batch(inputs, tmp_path / "out", threads=2, **FAST)
+    assert summary.workers == len(cpus) // 2
+    assert [len(row["worker_cpus"]) for row in summary.rows] == [2]
 
 
 def test_cpu_slots(monkeypatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 5})
-    assert _cpu_slots(2) == [(0, 1), (2, 3)]
-    assert _cpu_slots(5) == [(0,), (1,), (2,), (3,), (5,)]
-    assert _cpu_slots(1) == [None]  # one worker keeps every CPU
-    assert _cpu_slots(6) == [None] * 6  # more workers than CPUs: the OS schedules them
+    assert _cpu_slots(2, 1) == [(0,), (1,)]
+    assert _cpu_slots(2, 2) == [(0, 1), (2, 3)]
+    assert _cpu_slots(5, 1) == [(0,), (1,), (2,), (3,), (5,)]
+    assert _cpu_slots(1, 5) == [(0, 1, 2, 3, 5)]
+    assert _cpu_slots(6, 1) == [None] * 6  # more workers than CPUs: the OS schedules them
+    assert _cpu_slots(3, 2) == [None] * 3
 
 
 def test_corrupt_and_open_inputs_are_recorded_and_set_the_exit_code(first_run):
@@ -253,11 +265,11 @@ def test_command_line_parses_every_option(tmp_path):
     parser = argparse.ArgumentParser()
     add_batch_parser(parser.add_subparsers())
     args = parser.parse_args(["batch", "in", "out", "--method", "learned", "--grid", "64", "--workers", "3",
-                              "--engine", "ray", "--ray-address", "auto", "--eval", "--timeout", "2.5",
+                              "--threads", "2", "--engine", "ray", "--ray-address", "auto", "--eval", "--timeout", "2.5",
                               "--memory-limit", "4096", "--steps", "10", "--format", "obj", "--quiet"])
-    assert (args.method, args.grid, args.workers, args.engine, args.ray_address, args.evaluate, args.timeout,
-            args.memory_limit, args.steps, args.format, args.quiet) == (
-        "learned", 64, 3, "ray", "auto", True, 2.5, 4096, 10, "obj", True)
+    assert (args.method, args.grid, args.workers, args.threads, args.engine, args.ray_address, args.evaluate,
+            args.timeout, args.memory_limit, args.steps, args.format, args.quiet) == (
+        "learned", 64, 3, 2, "ray", "auto", True, 2.5, 4096, 10, "obj", True)
     assert callable(args.run)
 
 
@@ -268,6 +280,7 @@ def test_command_line_parses_every_option(tmp_path):
     (dict(grid=1), "grid"),
     (dict(steps=0), "steps"),
     (dict(workers=0), "workers"),
+    (dict(threads=0), "threads"),
     (dict(timeout=0), "timeout"),
     (dict(memory_limit_mb=0), "memory_limit_mb"),
     (dict(suffix=".xyz"), "suffix"),

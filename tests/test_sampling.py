@@ -195,6 +195,20 @@ def test_open_mesh_is_refused_unless_allowed(sphere):
     assert inside.tolist() == [True, False, False]
 
 
+def test_open_mesh_occupancy_equals_the_exact_winding_number_test(sphere):
+    vertices, triangles = sphere
+    bowl = triangles[vertices[triangles].mean(axis=1)[:, 2] > -0.3]
+    rng = np.random.default_rng(5)
+    # Random points, and points near the bowl's opening, where the winding number is near 0.5
+    # and the fast estimate hands over to the exact sum.
+    opening = np.column_stack([rng.uniform(-0.3, 0.3, (500, 2)), rng.uniform(-0.33, -0.27, 500)])
+    points = np.vstack([rng.uniform(-0.7, 0.7, (1500, 3)), opening])
+    exact = winding_number(vertices, bowl, points)
+    assert (np.abs(exact - 0.5) < 0.05).sum() > 50
+    inside = InsideOutside((vertices, bowl), allow_open=True).occupancy(points)
+    np.testing.assert_array_equal(inside, exact > 0.5)
+
+
 def test_non_manifold_edge_is_refused(cube):
     vertices, triangles = cube
     extra = np.vstack([vertices, [[0.5, 0.5, 3.0]]])

@@ -104,7 +104,7 @@ class ShapeTask:
     model : str or None
         Absolute path of the ONNX model for ``"learned"``.
     threads : int
-        onnxruntime threads of the worker.
+        Threads of the worker (torch for ``"fit"``, onnxruntime for ``"learned"``).
     evaluate : bool
         Compute :func:`voro3d.metrics.evaluate` against the input.
     memory_limit_mb : int or None
@@ -190,7 +190,7 @@ class BatchSummary:
 
 
 def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, steps: int = 400,
-              seed: int = 0, model=None, workers: int | None = None, engine: str = "local",
+              seed: int = 0, model=None, workers: int | None = None, threads: int = 1, engine: str = "local",
               ray_address: str | None = None, evaluate: bool = False, timeout: float | None = None,
               memory_limit_mb: int | None = None, suffix: str = ".ply",
               progress: bool = True) -> BatchSummary:
@@ -213,9 +213,15 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     model : str or os.PathLike, optional
         ONNX model of ``"learned"``; default the shipped one (:data:`voro3d.infer.DEFAULT_MODEL`).
     workers : int, optional
-        Shapes processed at once; default the CPUs this process may use. Local workers belong to
-        the caller's session, so where Linux shares CPU between sessions first (``sched_autogroup``)
-        and other sessions keep the CPUs busy, more workers do not get more CPU.
+        Shapes processed at once; default the CPUs this process may use divided by ``threads``.
+        Local workers belong to the caller's session, so where Linux shares CPU between sessions
+        first (``sched_autogroup``) and other sessions keep the CPUs busy, more workers do not get
+        more CPU.
+    threads : int
+        CPUs (and threads) of each worker, default 1. Local workers are pinned to ``threads`` CPUs
+        of their own while ``workers * threads`` CPUs are available; a Ray task asks Ray for
+        ``threads`` CPUs. One thread per worker gives the most shapes per second: a shape gains
+        little from a second thread (the fit is a loop of small steps), a second shape a whole core.
     engine : str
         ``"local"`` (a pool of worker processes) or ``"ray"`` (Ray tasks; needs ``voro3d[ray]``).
     ray_address : str, optional
@@ -267,7 +273,8 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     grid = positive_int(grid, "grid", minimum=2 if method == "fit" else 4)
     steps = positive_int(steps, "steps")
     seed = positive_int(seed, "seed", minimum=0)
-    workers = _available_cpus() if workers is None else positive_int(workers, "workers")
+    threads = positive_int(threads, "threads")
+    workers = max(1, _available_cpus() // threads) if workers is None else positive_int(workers, "workers")
     if timeout is not None and not (math.isfinite(timeout) and timeout > 0):
         raise ValueError(f"timeout must be a finite number of seconds > 0, got {timeout}")
     if memory_limit_mb is not None:
@@ -292,7 +299,6 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     jobs = _plan(input_dir, output_dir, suffix)
     settings = {"method": method, "grid": grid, "steps": steps if method == "fit" else None, "seed": seed,
                 "model": model, "eval": bool(evaluate), "format": suffix}
-    threads = max(1, _available_cpus() // workers)
     output_dir.mkdir(parents=True, exist_ok=True)
     with _ResultsLog(output_dir / RESULTS_NAME) as log:
         final = {job.input_name: log.latest[job.input_name] for job in jobs
@@ -430,7 +436,9 @@ def add_batch_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--steps", type=int, default=400, help="Adam steps of --method fit, default 400")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--model", help="ONNX model of --method learned (default: the shipped one)")
-    parser.add_argument("--workers", type=int, help="shapes at once (default: the available CPUs)")
+    parser.add_argument("--workers", type=int, help="shapes at once (default: the available CPUs / --threads)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="CPUs (threads) per worker, default 1: more shapes at once beat more threads per shape")
     parser.add_argument("--engine", choices=ENGINES, default="local",
                         help="local worker processes (default) or Ray tasks (pip install 'voro3d[ray]')")
     parser.add_argument("--ray-address", help="a running Ray cluster (default: start a local one)")
@@ -449,8 +457,8 @@ def add_batch_parser(subparsers) -> argparse.ArgumentParser:
 def _run_command(args) -> int:
     try:
         summary = run_batch(args.input_dir, args.output_dir, method=args.method, grid=args.grid, steps=args.steps,
-                            seed=args.seed, model=args.model, workers=args.workers, engine=args.engine,
-                            ray_address=args.ray_address, evaluate=args.evaluate, timeout=args.timeout,
+                            seed=args.seed, model=args.model, workers=args.workers, threads=args.threads,
+                            engine=args.engine, ray_address=args.ray_address, evaluate=args.evaluate, timeout=args.timeout,
                             memory_limit_mb=args.memory_limit, suffix="." + args.format, progress=not args.quiet)
     except KeyboardInterrupt:
         print("voro3d batch: interrupted; finished shapes are kept, rerun the same command to resume",
@@ -615,6 +623,9 @@ def _reconstruct(source, method: str, *, grid: int, steps: int, seed: int, model
     if method == "fit":
         from .fitting import fit
 
+        import torch
+
+        torch.set_num_threads(threads)
         return fit(source, grid, steps=steps, seed=seed, progress=False)
     return _predictor(model, threads).predict_mesh(source, grid)
 
@@ -673,10 +684,10 @@ def _memory_cap(limit_mb: int | None):
 def _worker_main(connection, parent_pid: int, cpus: tuple | None, method: str, model: str | None,
                  threads: int) -> None:
     """A local worker: warm up, say ready, then run shapes one at a time until told to stop."""
+    # Before torch, Open3D and OpenMP load: their thread pools size themselves to these.
     if cpus:
-        # Before torch, Open3D and OpenMP load: their thread pools size themselves to this mask.
         os.sched_setaffinity(0, cpus)
-        os.environ["OMP_NUM_THREADS"] = str(len(cpus))
+    os.environ["OMP_NUM_THREADS"] = str(threads)
     from tqdm import tqdm
 
     _die_with_parent(parent_pid)
@@ -762,7 +773,7 @@ def _run_local(tasks: list, record, *, workers: int, timeout: float | None, prep
     # into workers mid-state.
     context = multiprocessing.get_context("spawn")
     queue = deque(tasks)
-    pool = [_Worker(context, prepare, cpus) for cpus in _cpu_slots(min(workers, len(queue)))]
+    pool = [_Worker(context, prepare, cpus) for cpus in _cpu_slots(min(workers, len(queue)), prepare[2])]
     startup_deaths = 0
     try:
         while pool:
@@ -818,21 +829,19 @@ def _run_local(tasks: list, record, *, workers: int, timeout: float | None, prep
                 _remove_partials([worker.task.output])
 
 
-def _cpu_slots(workers: int) -> list:
-    """The CPUs each local worker is pinned to: an equal share of this process's, or None (unpinned).
+def _cpu_slots(workers: int, threads: int) -> list:
+    """The CPUs each local worker is pinned to: ``threads`` of this process's, or None (unpinned).
 
-    Pinned, a worker's thread pools (OpenMP, TBB, torch) size themselves to its share instead of to
-    the whole machine, so two workers on two cores do not each start two busy threads and take
-    turns on the cores; their multi-threaded stretches (kNN searches, inside tests) then cost no
-    more than the single-threaded ones, and the workers stop slowing each other down.
+    Pinned, a worker's thread pools (OpenMP, TBB, torch) size themselves to its CPUs instead of to
+    the whole machine, and no two workers take turns on a core. When ``workers * threads`` exceeds
+    the CPUs there is no fair split: the OS schedules the workers.
     """
     if not hasattr(os, "sched_getaffinity"):
         return [None] * workers
     cpus = sorted(os.sched_getaffinity(0))
-    if workers < 2 or workers > len(cpus):
+    if workers * threads > len(cpus):
         return [None] * workers
-    share = len(cpus) // workers
-    return [tuple(cpus[i * share:(i + 1) * share]) for i in range(workers)]
+    return [tuple(cpus[i * threads:(i + 1) * threads]) for i in range(workers)]
 
 
 def _exit_reason(exitcode: int) -> str:
@@ -854,16 +863,18 @@ def _run_ray(tasks: list, record, *, workers: int, timeout: float | None, addres
     except ImportError:
         raise ValueError("engine='ray' needs Ray: pip install 'voro3d[ray]'") from None
 
+    threads = prepare[2]
     started_here = not ray.is_initialized()
     if started_here:
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report: batches run offline
-        options = {"address": address} if address else {"num_cpus": workers, "include_dashboard": False}
+        options = {"address": address} if address else {"num_cpus": workers * threads, "include_dashboard": False}
         ray.init(**options, log_to_driver=False, logging_level=logging.WARNING)
-    shape = ray.remote(num_cpus=1, max_retries=0)(process_shape)
+    # Ray sets OMP_NUM_THREADS of a task's worker to the task's num_cpus.
+    shape = ray.remote(num_cpus=threads, max_retries=0)(process_shape)
     # Warm-up tasks do for Ray workers what a local worker does before it says it is ready, so
     # that a timeout, which runs from submission, never counts imports. (A lambda, because Ray's
     # decorator does not take the lru_cache wrapper.)
-    warm_up = ray.remote(num_cpus=1, max_retries=0)(lambda: _prepare(*prepare))
+    warm_up = ray.remote(num_cpus=threads, max_retries=0)(lambda: _prepare(*prepare))
     queue = deque(tasks)
     in_flight = {}  # ref -> (task, submitted); task None for a warm-up
     cold = min(workers, len(queue))  # free slots whose worker may be new: warm one up first

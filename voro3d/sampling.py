@@ -24,6 +24,9 @@ RAY_DIRECTIONS = np.array([
 # entries are alive at once per thread, so 2**21 pairs and up to four threads peak near 0.7 GB.
 WINDING_PAIRS_PER_BLOCK = 2**21
 WINDING_THREADS = min(4, os.cpu_count() or 1)
+# Fast winding numbers this close to 0.5 are recomputed exactly before the inside test; their
+# error was below 0.0034 on every query tried (dev meshes: grid nodes and random points).
+FAST_WINDING_MARGIN = 0.05
 
 
 def sample_surface(mesh, n: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -177,7 +180,7 @@ class InsideOutside:
     the sign of its ``compute_signed_distance`` are not used: their rays (any ``nsamples``) all
     point within 0.001 of (1, 1, 1) and misclassify grid nodes of self-intersecting meshes.
     Open meshes have no inside unless ``allow_open=True``, which switches to the generalized
-    winding number everywhere (slow: see :func:`winding_number`).
+    winding number everywhere.
 
     Parameters
     ----------
@@ -234,8 +237,10 @@ class InsideOutside:
         import open3d as o3d
 
         points = as_points(points, "points", min_count=0)
-        if points.shape[0] == 0 or not self.closed:
-            return self.winding_number(points) > 0.5
+        if points.shape[0] == 0:
+            return np.zeros(0, dtype=bool)
+        if not self.closed:
+            return self._winding_inside(points)
         n_rays = RAY_DIRECTIONS.shape[0]
         rays = np.empty((points.shape[0], n_rays, 6), dtype=np.float32)
         rays[:, :, :3] = points[:, None, :]
@@ -248,6 +253,17 @@ class InsideOutside:
             # abs: parity ignores orientation, so an inside-out closed mesh must not flip here.
             inside[split] = np.abs(self.winding_number(points[split])) > 0.5
         return inside
+
+    def _winding_inside(self, points: np.ndarray) -> np.ndarray:
+        """Winding number > 0.5, from libigl's fast (Barnes-Hut) estimate, which errs by a few
+        thousandths, made exact (:func:`winding_number`) where it is near 0.5: hundreds of times
+        faster than the exact sum everywhere."""
+        import igl
+
+        estimate = igl.fast_winding_number(self.vertices, self.triangles.astype(np.int64), points)
+        unsure = np.abs(estimate - 0.5) < FAST_WINDING_MARGIN
+        estimate[unsure] = self.winding_number(points[unsure])
+        return estimate > 0.5
 
     def winding_number(self, points) -> np.ndarray:
         """``(n, 3)`` points -> ``(n,)`` float64 generalized winding number (see :func:`winding_number`)."""
