@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -104,8 +105,9 @@ def _summary(rows: list[dict]) -> dict:
 
 def _markdown(result: dict) -> str:
     lines = ["# Learned VoroMesh vs Marching Cubes (dev meshes, never trained on)", "",
-             f"Model `{result['model']}`; onnxruntime threads: {result['threads']}; {result['machine']}. "
-             "Timings were taken on a shared 2-core machine with other work running, so they are noisy.",
+             f"Model `{result['model']}`; onnxruntime threads: {result['threads']}; {result['machine']}; "
+             f"1-minute load average {result['load_average']['before'][0]:.2f} before, "
+             f"{result['load_average']['after'][0]:.2f} after (timings are noisy when other work runs).",
              "CD x1e5 / F1 / NC in the ground truth's NDC frame (100k points each way). "
              "`learned` uses the SDF fallbacks (default), `no fallback` the network alone.",
              f"Skipped (open meshes, no SDF sign): {', '.join(result['skipped']) or 'none'}.", ""]
@@ -157,6 +159,7 @@ def main() -> None:
     predictor = Predictor(args.model, threads=args.threads)
     paths = sorted(p for p in DEV.iterdir() if p.suffix.lower() in (".obj", ".off", ".stl", ".ply"))[: args.limit]
     rows, skipped = [], set()
+    load_before = os.getloadavg()
     for grid in args.grids:
         for path in paths:
             row = run_case(predictor, path, grid)
@@ -168,6 +171,7 @@ def main() -> None:
                   f"net {row['learned']['network_s']:.3f}s extract {row['learned']['extraction_s']:.3f}s", flush=True)
     result = {"model": args.model or str(DEFAULT_MODEL.relative_to(ROOT)),
               "threads": args.threads or "default (all cores)", "machine": machine_description(),
+              "load_average": {"before": load_before, "after": os.getloadavg()},
               "skipped": sorted(skipped), "rows": rows, "summary": {}, "groups": {}}
     for grid in args.grids:
         grid_rows = [r for r in rows if r["grid"] == grid]

@@ -1,4 +1,6 @@
 """reconstruct(): point clouds and meshes in, watertight Open3D meshes out."""
+from pathlib import Path
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -161,3 +163,19 @@ def test_example_pipeline_runs(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "voromesh.ply").is_file() and (tmp_path / "voromesh.png").is_file()
+
+
+DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
+
+
+@pytest.mark.skipif(not DEV.is_dir(), reason=f"dev meshes not found at {DEV}")
+def test_denoise_keeps_thin_walls_oriented():
+    # Thin plates: plane fits wide enough to average noise away span both sides of them, and
+    # oriented over those fits alone the plates came out inside out (CD x1e5 1957).
+    from voro3d.io import load_mesh
+
+    mesh = load_mesh(DEV / "thingi32_75656.obj")
+    points, _ = sample_surface(mesh, 100_000, seed=0)
+    result = reconstruct(points, grid=32, denoise=True)
+    assert check_watertight(result, self_intersection=False).watertight
+    assert evaluate(result, mesh)["chamfer_x1e5"] < 5.0

@@ -171,11 +171,34 @@ def inside_support(points, normals, grid: int, *, k: int = NEIGHBOURS):
         support = points
         averaged = cloud
     if normals is None:
-        return support, estimate_normals(support, k=k)
+        return support, _plane_normals(support, grid, k=k)
     support_normals = np.asarray(averaged.normals)
     length = np.linalg.norm(support_normals, axis=1)
     keep = length > 1e-6  # opposite normals in one voxel cancel: such a point carries no side
     return support[keep], support_normals[keep] / length[keep, None]
+
+
+def _plane_normals(support, grid: int, *, k: int) -> np.ndarray:
+    """Outward normals of ``k``-neighbour plane fits on the support, the better of two orientations.
+
+    Oriented over a graph of ``NEIGHBOURS`` neighbours, the wide fits survive noise; on clean
+    thin walls and sharp rims, though, the narrow fits orient better, and their signs are then
+    carried over. The orientation whose winding number is nearer 0 or 1 over the grid nodes
+    (a consistent one leaves few values in between) wins.
+    """
+    from .sampling import grid_nodes, point_areas, point_winding_number
+
+    wide = estimate_normals(support, k=k, graph_k=NEIGHBOURS)
+    narrow = estimate_normals(support, k=NEIGHBOURS)
+    carried = wide * np.where(np.einsum("ij,ij->i", wide, narrow) < 0, -1.0, 1.0)[:, None]
+    nodes = grid_nodes(grid)
+    areas = point_areas(support, k=NEIGHBOURS)
+
+    def ambiguity(normals):
+        winding = point_winding_number(support, normals, nodes, areas=areas)
+        return float(np.mean(np.minimum(np.abs(winding), np.abs(1.0 - winding))))
+
+    return min((wide, carried), key=ambiguity)
 
 
 def project_to_planes(points, support, support_normals, *, k: int = DENOISE_NEIGHBOURS):
@@ -281,7 +304,7 @@ def _oriented(points, normals):
     return points, normals / np.maximum(length, 1e-12)[:, None]
 
 
-def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
+def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | None = None) -> np.ndarray:
     """Unit normals from local PCA, oriented consistently and outward.
 
     Open3D fits a plane to each point's ``k`` nearest neighbours. The signs are then made
@@ -302,7 +325,10 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
     ----------
     points : (n, 3) float64
     k : int
-        Neighbours for the plane fits and the graph.
+        Neighbours for the plane fits.
+    graph_k : int, optional
+        Neighbours joined in the orientation graph, at most ``k``; default ``k``. Fewer than the
+        plane fits keep the graph on one side of walls thinner than a plane fit's reach.
 
     Returns
     -------
@@ -320,6 +346,7 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
 
     n = points.shape[0]
     k = min(k, n - 1)
+    graph_k = k if graph_k is None else min(graph_k, k)
     distances, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
     extent = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
     stacked = int((distances[:, -1] <= 1e-9 * extent).sum())
@@ -332,8 +359,8 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
     if not np.isfinite(normals).all() or (np.linalg.norm(normals, axis=1) < 0.5).mean() > 0.01:
         raise ValueError("normals could not be estimated (degenerate neighbourhoods)")
 
-    rows = np.repeat(np.arange(n), k)
-    cols = neighbours[:, 1:].reshape(-1)
+    rows = np.repeat(np.arange(n), graph_k)
+    cols = neighbours[:, 1:graph_k + 1].reshape(-1)
     keep = cols < n  # duplicate points can leave a row short
     rows, cols = rows[keep], cols[keep]
     # Edges along the surface are cheap, so the tree never steps across a thin wall (whose two
@@ -375,7 +402,7 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS) -> np.ndarray:
               & (np.abs(np.einsum("ij,ij->i", step, normals[tree.col])) < 0.3))
     patches, patch = connected_components(coo_matrix((np.ones(int(smooth.sum())), (tree.row[smooth], tree.col[smooth])),
                                                      shape=(n, n)), directed=False)
-    votes = np.bincount(patch, weights=_outside_votes(points, normals, float(np.median(distances[:, -1]))),
+    votes = np.bincount(patch, weights=_outside_votes(points, normals, float(np.median(distances[:, graph_k]))),
                         minlength=patches)
     # Only a clear verdict flips: near thin walls most probes cannot tell, and a few can mislead.
     flip = votes < -0.25 * np.bincount(patch, minlength=patches)
