@@ -21,7 +21,10 @@ from voro3d.watertight import check_watertight
 FAST = dict(grid=16, steps=20, progress=False)
 CORRUPT = b"ply\nformat ascii 1.0\nelement vertex 3\nnot a number\n"
 # The `voro3d batch` command exactly as the CLI runs it: parse, then `args.run(args)` is the exit code.
-COMMAND = ("import argparse, sys; from voro3d.batch import add_batch_parser; "
+# Ctrl-C raises KeyboardInterrupt as at a terminal, even when the tests themselves were started in
+# the background, where the shell hands every child an ignored SIGINT.
+COMMAND = ("import argparse, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+           "from voro3d.batch import add_batch_parser; "
            "parser = argparse.ArgumentParser(); add_batch_parser(parser.add_subparsers()); "
            "args = parser.parse_args(sys.argv[1:]); sys.exit(args.run(args))")
 
