@@ -109,6 +109,14 @@ def test_threads_give_a_worker_that_many_cpus(tmp_path):
     assert [len(row["worker_cpus"]) for row in summary.rows] == [2]
 
 
+def test_more_threads_than_cpus_warn(tmp_path):
+    inputs = _inputs(tmp_path / "in", names=("sphere",))
+    cpus = len(os.sched_getaffinity(0))
+    with pytest.warns(UserWarning, match="exceed the"):
+        summary = run_batch(inputs, tmp_path / "out", workers=1, threads=cpus + 1, **FAST)
+    assert summary.counts["ok"] == 1 and summary.rows[0]["worker_cpus"] == sorted(os.sched_getaffinity(0))
+
+
 def test_cpu_slots(monkeypatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 5})
     assert _cpu_slots(2, 1) == [(0,), (1,)]
