@@ -275,9 +275,10 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     steps = positive_int(steps, "steps")
     seed = positive_int(seed, "seed", minimum=0)
     threads = positive_int(threads, "threads")
-    workers = max(1, _available_cpus() // threads) if workers is None else positive_int(workers, "workers")
-    if workers * threads > _available_cpus():
-        warnings.warn(f"{workers} workers x {threads} threads exceed the {_available_cpus()} CPUs available: "
+    cpus = _available_cpus()
+    workers = max(1, cpus // threads) if workers is None else positive_int(workers, "workers")
+    if workers * threads > cpus:
+        warnings.warn(f"{workers} workers x {threads} threads exceed the {cpus} CPUs available: "
                       "the workers will take turns on them (fewer workers or threads run faster)", stacklevel=2)
     if timeout is not None and not (math.isfinite(timeout) and timeout > 0):
         raise ValueError(f"timeout must be a finite number of seconds > 0, got {timeout}")

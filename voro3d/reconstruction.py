@@ -190,7 +190,10 @@ def _plane_normals(support, grid: int, *, k: int) -> np.ndarray:
 
     wide = estimate_normals(support, k=k, graph_k=NEIGHBOURS)
     narrow = estimate_normals(support, k=NEIGHBOURS)
-    carried = wide * np.where(np.einsum("ij,ij->i", wide, narrow) < 0, -1.0, 1.0)[:, None]
+    disagree = np.einsum("ij,ij->i", wide, narrow) < 0
+    if not disagree.any():  # one orientation: no winding numbers needed to choose
+        return wide
+    carried = wide * np.where(disagree, -1.0, 1.0)[:, None]
     nodes = grid_nodes(grid)
     areas = point_areas(support, k=NEIGHBOURS)
 
