@@ -1,5 +1,6 @@
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,10 +32,14 @@ def bracket():
     return (vertices, triangles), sdf_grid((vertices, triangles), 32)
 
 
-def test_shipped_model_is_small_and_documented():
-    assert DEFAULT_MODEL.is_file()
+def test_shipped_model_is_package_data_small_and_documented():
+    import voro3d
+
+    assert DEFAULT_MODEL.is_file() and DEFAULT_MODEL.parent == Path(voro3d.__file__).parent / "models"
     assert DEFAULT_MODEL.stat().st_size < 20 * 2**20
-    assert (DEFAULT_MODEL.parent / "README.md").is_file()
+    card = Path(__file__).resolve().parents[1] / "models" / "README.md"
+    assert f"`{DEFAULT_MODEL.name}`" in card.read_text()
+    assert not (card.parent / DEFAULT_MODEL.name).exists()  # one copy, in the package
 
 
 def test_bracket_is_watertight_and_beats_marching_cubes(predictor, bracket):

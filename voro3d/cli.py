@@ -159,7 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
                                        "nodes spanning [-1,1]^3) or a mesh")
     _mesh_output_options(predict)
     predict.add_argument("--grid", type=int, default=32, help="SDF resolution when INPUT is a mesh, default 32")
-    predict.add_argument("--model", help="ONNX model (default: the shipped models/voromesh_sdf.onnx)")
+    predict.add_argument("--model", help="ONNX model (default: the shipped voro3d/models/voromesh_sdf.onnx)")
     predict.add_argument("--no-fallback", action="store_true", help="trust the network's occupancy everywhere")
     predict.set_defaults(run=_predict)
 

@@ -22,13 +22,17 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from .extract import VoroMesh
 
-DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "models" / "voromesh_sdf.onnx"
+# The shipped network is package data (its card, config and loss curve are in the repository's
+# models/). voro3d has a compiled extension, so it is never imported from a zip archive and
+# importlib.resources gives a real file that onnxruntime can open.
+DEFAULT_MODEL = Path(resources.files(__package__) / "models" / "voromesh_sdf.onnx")
 # Node threshold in voxels, used when a model carries no metadata. Every node of a grid edge that
 # crosses the surface has |sdf| < 1 voxel; the paper's voxel diagonal (1.73) adds a third and
 # fourth layer of nodes that VoroLoss barely constrains, and trained noticeably slower here (on a
@@ -192,7 +196,7 @@ class Predictor:
     ----------
     model_path : str or os.PathLike, optional
         An ``.onnx`` file from :func:`voro3d.learn.export.export_onnx`; default the shipped
-        ``models/voromesh_sdf.onnx``.
+        model, :data:`DEFAULT_MODEL` (package data ``voro3d/models/voromesh_sdf.onnx``).
     threads : int, optional, keyword-only
         onnxruntime intra-op threads; default all cores.
 
