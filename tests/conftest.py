@@ -1,8 +1,11 @@
+import os
 from pathlib import Path
 
 import pytest
 
-DEV_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
+# The dev meshes: $VORO3D_DEV_DATA, else shared/data/dev beside the checkout. Tests take the path
+# from the dev_meshes fixture, which skips them when the folder is absent.
+DEV_DATA = Path(os.environ.get("VORO3D_DEV_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data" / "dev")
 
 
 def pytest_addoption(parser):
@@ -19,8 +22,9 @@ def pytest_configure(config):
     settings.load_profile("slow" if config.getoption("--slow") else "ci")
 
 
-@pytest.fixture
-def dev_meshes():
+@pytest.fixture(scope="session")
+def dev_meshes() -> Path:
+    """The dev-mesh folder; skips the test when it is absent."""
     if not DEV_DATA.is_dir():
         pytest.skip(f"dev meshes not found at {DEV_DATA}")
     return DEV_DATA

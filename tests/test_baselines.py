@@ -1,5 +1,4 @@
 """Tests for voro3d.baselines: Marching Cubes and Dual Contouring from SDF grids."""
-from pathlib import Path
 
 import numpy as np
 import open3d as o3d
@@ -11,8 +10,6 @@ from voro3d.metrics import evaluate
 from voro3d.sampling import grid_nodes, open_edge_count, sdf_grid
 from voro3d.watertight import check_watertight, signed_volume
 
-DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
-needs_dev = pytest.mark.skipif(not DEV.is_dir(), reason=f"dev meshes not found at {DEV}")
 
 RADIUS = 0.6
 GRID = 32
@@ -121,10 +118,9 @@ def test_dual_contouring_mesh_errors(sphere_sdf):
         dual_contouring(sphere_sdf, "sphere.ply")
 
 
-@needs_dev
 @pytest.mark.parametrize("name", ["organic_bunny.off", "cad_fandisk.obj"])
-def test_dev_meshes(name):
-    gt = load_mesh(DEV / name)
+def test_dev_meshes(dev_meshes, name):
+    gt = load_mesh(dev_meshes / name)
     gt = fit_frame(gt).apply_mesh(gt)
     sdf = sdf_grid(gt, GRID)
     mc = marching_cubes(sdf)

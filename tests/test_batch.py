@@ -127,6 +127,71 @@ def test_cpu_slots(monkeypatch):
     assert _cpu_slots(3, 2) == [None] * 3
 
 
+# The winding number's thread count inside a worker whose affinity is one CPU: the batch asks for two
+# threads per worker, the affinity allows one.
+_PINNED_WORKER = """
+import os, sys
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+from voro3d import sampling
+from voro3d.batch import _prepare
+before = sampling.WINDING_THREADS
+_prepare("learned", sys.argv[1], 2)
+print(before, sampling.WINDING_THREADS)
+"""
+
+
+def test_winding_threads_follow_the_worker_affinity():
+    if min(4, os.cpu_count() or 1) < 2:
+        pytest.skip("needs two CPUs for the winding number to use more than one thread")
+    result = subprocess.run([sys.executable, "-c", _PINNED_WORKER, str(DEFAULT_MODEL)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == [str(min(4, os.cpu_count())), "1"]
+
+
+# Without fcntl, resource and msvcrt (as on a platform that lacks them) the CLI still starts; only
+# memory_limit_mb, which needs RLIMIT_AS, is refused.
+_WITHOUT_POSIX_MODULES = """
+import sys
+
+BLOCKED = {"fcntl", "resource", "msvcrt"}
+
+
+class Missing:
+    def find_spec(self, name, path=None, target=None):
+        if name in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+
+for name in BLOCKED:
+    sys.modules.pop(name, None)
+sys.meta_path.insert(0, Missing())
+from voro3d.batch import _cpu_seconds, _peak_memory_mb, run_batch
+from voro3d.cli import main
+
+for argv in (["--help"], ["batch", "--help"]):
+    try:
+        main(argv)
+    except SystemExit as done:
+        assert done.code == 0, (argv, done.code)
+assert _cpu_seconds() > 0 and _peak_memory_mb() > 0
+try:
+    run_batch(sys.argv[1], sys.argv[2], memory_limit_mb=64, progress=False)
+except ValueError as error:
+    print(error)
+"""
+
+
+def test_cli_starts_without_fcntl_and_resource(tmp_path):
+    inputs = _inputs(tmp_path / "in", names=("sphere",))
+    result = subprocess.run([sys.executable, "-c", _WITHOUT_POSIX_MODULES, str(inputs), str(tmp_path / "out")],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "usage: voro3d batch" in result.stdout
+    assert "memory_limit_mb needs the resource module" in result.stdout
+    assert not (tmp_path / "out").exists()
+
+
 def test_corrupt_and_open_inputs_are_recorded_and_set_the_exit_code(first_run):
     _, output, summary = first_run
     rows = {row["input"]: row for row in _rows(output)}

@@ -1,5 +1,3 @@
-from pathlib import Path
-
 import numpy as np
 import open3d as o3d
 import pytest
@@ -12,7 +10,6 @@ from voro3d.io import load_mesh, mesh_arrays
 from voro3d.sampling import InsideOutside, sample_surface
 from voro3d.watertight import check_watertight
 
-DEV_DATA = Path("/work/shared/data/dev")
 # Enough steps to converge well at grids up to 32, few enough to keep this file fast.
 QUICK = dict(steps=100, milestones=(40, 60, 80), progress=False)
 # For tests of behaviour rather than quality.
@@ -191,9 +188,8 @@ def test_bad_mesh():
         fit((np.zeros((3, 3)), np.zeros((0, 3), int)), 8, progress=False)
 
 
-@pytest.mark.skipif(not (DEV_DATA / "organic_bunny.off").is_file(), reason="dev meshes not present")
-def test_bunny():
-    bunny = load_mesh(DEV_DATA / "organic_bunny.off")
+def test_bunny(dev_meshes):
+    bunny = load_mesh(dev_meshes / "organic_bunny.off")
     voromesh, info = fit_with_info(bunny, 16, **QUICK)
     surface = extract_mesh(voromesh.generators, voromesh.occupancy)
     assert check_watertight(surface, self_intersection=False).watertight

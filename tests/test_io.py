@@ -12,8 +12,6 @@ from voro3d.io import (NormalizationFrame, fit_frame, load_mesh, load_points, me
                        save_mesh, to_triangle_mesh)
 from voro3d.sampling import open_edge_count
 
-DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
-needs_dev = pytest.mark.skipif(not DEV.is_dir(), reason=f"dev meshes not found at {DEV}")
 
 
 @pytest.fixture
@@ -247,17 +245,15 @@ def test_frame_errors():
 
 # -- dev meshes -----------------------------------------------------------------------------------
 
-@needs_dev
 @pytest.mark.parametrize("name", ["organic_bunny.off", "cad_fandisk.obj", "abc_00000001.stl", "organic_spot.obj"])
-def test_dev_meshes_load_closed(name):
+def test_dev_meshes_load_closed(dev_meshes, name):
     # organic_spot.obj is open as stored (UV seams) and abc_*.stl are triangle soups.
-    mesh = load_mesh(DEV / name)
+    mesh = load_mesh(dev_meshes / name)
     assert open_edge_count(*mesh_arrays(mesh)) == 0
 
 
-@needs_dev
-def test_dev_open_mesh_stays_open():
-    mesh = load_mesh(DEV / "thingi32_96481.obj")
+def test_dev_open_mesh_stays_open(dev_meshes):
+    mesh = load_mesh(dev_meshes / "thingi32_96481.obj")
     assert open_edge_count(*mesh_arrays(mesh)) > 0
 
 

@@ -1,5 +1,4 @@
 """Tests for voro3d.metrics.evaluate: CD / F1 / NC with the paper's conventions."""
-from pathlib import Path
 
 import numpy as np
 import open3d as o3d
@@ -10,8 +9,6 @@ from voro3d.io import fit_frame, load_mesh, mesh_arrays
 from voro3d.metrics import evaluate
 from voro3d.sampling import sdf_grid
 
-DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
-needs_dev = pytest.mark.skipif(not DEV.is_dir(), reason=f"dev meshes not found at {DEV}")
 
 KEYS = {"chamfer", "chamfer_x1e5", "chamfer_l1", "precision", "recall", "f1", "nc", "n_vertices", "n_triangles"}
 
@@ -108,10 +105,9 @@ def test_mesh_errors(cube):
         evaluate("pred.obj", cube)
 
 
-@needs_dev
 @pytest.mark.parametrize("name", ["organic_bunny.off", "cad_fandisk.obj"])
-def test_dev_marching_cubes_baseline(name):
-    gt = load_mesh(DEV / name)
+def test_dev_marching_cubes_baseline(dev_meshes, name):
+    gt = load_mesh(dev_meshes / name)
     frame = fit_frame(gt)
     vertices, triangles = marching_cubes(sdf_grid(frame.apply_mesh(gt), 32))
     # Back in the file's units: the metric must not care which frame the pair arrives in.

@@ -34,7 +34,8 @@ their outputs are identical bit for bit.
   The Ray engine cancels the task with ``force=True``, which kills the Ray worker running it.
   The clock starts when the shape is handed to a worker; a local worker has already paid its
   imports (and loaded the ONNX model) by then, and Ray workers are warmed up the same way first.
-* ``memory_limit_mb``: for the length of each shape the worker lowers its soft ``RLIMIT_AS``
+* ``memory_limit_mb`` (POSIX only: it needs the ``resource`` module): for the length of each
+  shape the worker lowers its soft ``RLIMIT_AS``
   (:func:`resource.setrlimit`) to its current address space plus the limit, so an allocation
   beyond it fails (``MemoryError``, or the native library's equivalent) and the shape is
   recorded as failed. It bounds the *virtual* memory a shape adds, which exceeds the resident
@@ -49,7 +50,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import fcntl
 import functools
 import json
 import logging
@@ -58,7 +58,6 @@ import multiprocessing
 import multiprocessing.connection
 import os
 import re
-import resource
 import signal
 import sys
 import threading
@@ -70,6 +69,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
+from ._system import available_cpus
 from ._validate import positive_int
 from .io import MESH_SUFFIXES
 
@@ -275,7 +275,7 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     steps = positive_int(steps, "steps")
     seed = positive_int(seed, "seed", minimum=0)
     threads = positive_int(threads, "threads")
-    cpus = _available_cpus()
+    cpus = available_cpus()
     workers = max(1, cpus // threads) if workers is None else positive_int(workers, "workers")
     if workers * threads > cpus:
         warnings.warn(f"{workers} workers x {threads} threads exceed the {cpus} CPUs available: "
@@ -284,6 +284,11 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         raise ValueError(f"timeout must be a finite number of seconds > 0, got {timeout}")
     if memory_limit_mb is not None:
         memory_limit_mb = positive_int(memory_limit_mb, "memory_limit_mb")
+        try:
+            import resource  # noqa: F401  (POSIX only)
+        except ImportError:
+            raise ValueError("memory_limit_mb needs the resource module's RLIMIT_AS, which this platform "
+                             f"({sys.platform}) lacks; got memory_limit_mb={memory_limit_mb}") from None
     if suffix not in MESH_SUFFIXES:
         raise ValueError(f"suffix must be one of {MESH_SUFFIXES}, got {suffix!r}")
     input_dir, output_dir = Path(input_dir), Path(output_dir)
@@ -406,9 +411,8 @@ def process_shape(task: ShapeTask) -> dict:
 
 
 def _cpu_seconds() -> float:
-    """CPU time of this process, all its threads, user and system."""
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    return usage.ru_utime + usage.ru_stime
+    """CPU time of this process, all its threads, user and system (portable, unlike ``resource``)."""
+    return time.process_time()
 
 
 def add_batch_parser(subparsers) -> argparse.ArgumentParser:
@@ -474,12 +478,6 @@ def _run_command(args) -> int:
     return summary.exit_code
 
 
-def _available_cpus() -> int:
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
-
-
 class _Job(NamedTuple):
     source: Path
     output: Path
@@ -523,11 +521,9 @@ class _ResultsLog:
 
     def __init__(self, path: Path):
         self.handle = open(path, "a+b")
-        try:
-            fcntl.flock(self.handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not _lock_exclusive(self.handle):
             self.handle.close()
-            raise ValueError(f"output_dir {path.parent} is in use by another voro3d batch") from None
+            raise ValueError(f"output_dir {path.parent} is in use by another voro3d batch")
         self.handle.seek(0)
         data = self.handle.read()
         self.latest = {}
@@ -553,6 +549,30 @@ class _ResultsLog:
 
     def __exit__(self, *exc):
         self.handle.close()
+
+
+def _lock_exclusive(handle) -> bool:
+    """Lock an open file for as long as it stays open; False when another process holds the lock.
+
+    ``fcntl.flock`` on POSIX; on Windows ``msvcrt.locking`` of the file's first byte (a mandatory
+    lock there: other programs cannot read that byte while the batch runs).
+    """
+    try:
+        import fcntl
+    except ImportError:
+        import msvcrt
+
+        handle.seek(0)
+        try:
+            msvcrt.locking(handle.fileno(), msvcrt.LK_NBLCK, 1)
+        except OSError:
+            return False
+        return True
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
 
 
 def _fsync(path: str) -> int:
@@ -611,10 +631,14 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
     import numpy as np
     import open3d as o3d
 
+    from . import sampling
     from .extract import VoroMesh
     from .metrics import evaluate
     from .watertight import check_watertight
 
+    # Winding numbers run on up to sampling.WINDING_THREADS threads, a number set at import from
+    # the whole machine; a worker has ``threads`` CPUs (its affinity, when pinned).
+    sampling.WINDING_THREADS = max(1, min(sampling.WINDING_THREADS, threads, available_cpus()))
     box = o3d.geometry.TriangleMesh.create_box()
     _reconstruct(box, method, grid=8, steps=2, seed=0, model=model, threads=threads)
     corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
@@ -658,6 +682,10 @@ def _peak_memory_mb() -> float | None:
     """Peak resident memory since :func:`_reset_peak_memory`, in MiB (the lifetime peak where it can't reset)."""
     peak = _proc_status_kb("VmHWM")
     if peak is None:
+        try:
+            import resource
+        except ImportError:  # Windows
+            return None
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         if sys.platform == "darwin":  # bytes there, kB elsewhere
             peak /= 1024
@@ -675,6 +703,8 @@ def _memory_cap(limit_mb: int | None):
     if limit_mb is None:
         yield
         return
+    import resource  # run_batch has checked that it exists
+
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     cap = (_proc_status_kb("VmSize") or 0) * 1024 + limit_mb * 2**20
     if hard != resource.RLIM_INFINITY:
