@@ -1,5 +1,8 @@
 // Delaunay tetrahedralisation with CGAL's exact predicates, returned as numpy arrays.
 // Python walks no CGAL objects: the cells are copied out in one pass.
+//
+// Every function checks its arrays (dtype, shape, finite coordinates, index bounds) and raises
+// ValueError or TypeError naming the argument, then releases the GIL for the CGAL work.
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
@@ -9,18 +12,86 @@
 #include <CGAL/Triangulation_cell_base_with_info_3.h>
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>
 
+#include <cmath>
 #include <cstdint>
-#include <stdexcept>
+#include <string>
 #include <utility>
 #include <vector>
 
 namespace py = pybind11;
+
+using Points = py::array_t<double, py::array::c_style | py::array::forcecast>;
+using Indices = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>;
 
 namespace {
 py::array_t<std::int64_t> to_array(const std::vector<std::int64_t>& values, py::ssize_t width) {
   py::array_t<std::int64_t> result({static_cast<py::ssize_t>(values.size()) / width, width});
   std::copy(values.begin(), values.end(), result.mutable_data());
   return result;
+}
+
+std::string shape_of(const py::array& array) {
+  std::string text = "(";
+  for (py::ssize_t i = 0; i < array.ndim(); ++i) {
+    text += (i ? ", " : "") + std::to_string(array.shape(i));
+  }
+  return text + (array.ndim() == 1 ? ",)" : ")");
+}
+
+// `value` as a numpy array of one of `kinds` (numpy dtype kind characters), else TypeError.
+py::array as_array(const py::handle& value, const char* name, const std::string& kinds, const char* expected) {
+  py::array array = py::array::ensure(value);
+  if (!array) {
+    throw py::type_error(std::string(name) + " must be an array, got " + std::string(py::str(py::type::handle_of(value).attr("__name__"))));
+  }
+  if (kinds.find(array.dtype().kind()) == std::string::npos) {
+    throw py::type_error(std::string(name) + " must be " + expected + ", got dtype " + std::string(py::str(array.dtype())));
+  }
+  return array;
+}
+
+void check_shape(const py::array& array, const char* name, py::ssize_t width, const char* letter) {
+  if (array.ndim() != 2 || array.shape(1) != width) {
+    throw py::value_error(std::string(name) + " must have shape (" + letter + ", " + std::to_string(width) + "), got " +
+                          shape_of(array));
+  }
+}
+
+// Finite float64 (n, 3) coordinates with at least `min_rows` rows.
+Points check_points(const py::handle& value, const char* name, py::ssize_t min_rows) {
+  py::array array = as_array(value, name, "fiu", "a real-valued array");
+  check_shape(array, name, 3, "n");
+  if (array.shape(0) < min_rows) {
+    throw py::value_error(std::string(name) + " must hold at least " + std::to_string(min_rows) + " points, got " +
+                          std::to_string(array.shape(0)));
+  }
+  Points points = Points::ensure(array);
+  auto p = points.unchecked<2>();
+  for (py::ssize_t i = 0; i < p.shape(0); ++i) {
+    if (!(std::isfinite(p(i, 0)) && std::isfinite(p(i, 1)) && std::isfinite(p(i, 2)))) {
+      throw py::value_error(std::string(name) + " holds NaN or inf at row " + std::to_string(i));
+    }
+  }
+  return points;
+}
+
+// An (m, width) integer array whose every entry indexes one of `n` rows of `target`.
+Indices check_indices(const py::handle& value, const char* name, py::ssize_t width, const char* letter, py::ssize_t n,
+                      const char* target) {
+  py::array array = as_array(value, name, "iu", "an integer array of indices");
+  check_shape(array, name, width, letter);
+  Indices indices = Indices::ensure(array);
+  auto t = indices.unchecked<2>();
+  for (py::ssize_t i = 0; i < t.shape(0); ++i) {
+    for (py::ssize_t j = 0; j < width; ++j) {
+      if (t(i, j) < 0 || t(i, j) >= n) {
+        throw py::value_error(std::string(name) + " holds index " + std::to_string(t(i, j)) + " at row " +
+                              std::to_string(i) + ", outside [0, " + std::to_string(n) + ") for the " +
+                              std::to_string(n) + " rows of " + target);
+      }
+    }
+  }
+  return indices;
 }
 }  // namespace
 
@@ -34,10 +105,8 @@ using Delaunay = CGAL::Delaunay_triangulation_3<Kernel, DataStructure>;
 // Returns the finite cells (m, 4), positively oriented, and the pairs of face-adjacent cells
 // whose circumspheres coincide exactly (the opposite vertex lies on the sphere): those
 // tetrahedra share one Voronoi vertex.
-py::tuple delaunay_tetrahedra(py::array_t<double, py::array::c_style | py::array::forcecast> points) {
-  if (points.ndim() != 2 || points.shape(1) != 3) {
-    throw std::invalid_argument("points must have shape (n, 3)");
-  }
+py::tuple delaunay_tetrahedra(const py::object& points_in) {
+  Points points = check_points(points_in, "points", 4);
   const auto n = static_cast<std::size_t>(points.shape(0));
   auto p = points.unchecked<2>();
   std::vector<std::pair<Kernel::Point_3, std::int64_t>> input;
@@ -47,56 +116,74 @@ py::tuple delaunay_tetrahedra(py::array_t<double, py::array::c_style | py::array
   }
   std::vector<std::int64_t> cells;
   std::vector<std::int64_t> cospherical;
+  int dimension = 3;
   {
     py::gil_scoped_release release;
     Delaunay triangulation(input.begin(), input.end());
-    if (triangulation.dimension() < 3) {
-      throw std::invalid_argument("points are coplanar: no 3D tetrahedralisation exists");
-    }
-    cells.reserve(4 * triangulation.number_of_finite_cells());
-    std::int64_t index = 0;
-    // CGAL stores every cell positively oriented.
-    for (auto cell : triangulation.finite_cell_handles()) {
-      cell->info() = index++;
-      for (int i = 0; i < 4; ++i) cells.push_back(cell->vertex(i)->info());
-    }
-    for (auto cell : triangulation.finite_cell_handles()) {
-      for (int i = 0; i < 4; ++i) {
-        auto other = cell->neighbor(i);
-        if (triangulation.is_infinite(other) || other->info() < cell->info()) continue;
-        const auto& opposite = other->vertex(other->index(cell))->point();
-        // perturb = false: the exact answer, ON_BOUNDARY for co-spherical points.
-        if (triangulation.side_of_sphere(cell, opposite, false) == CGAL::ON_BOUNDARY) {
-          cospherical.push_back(cell->info());
-          cospherical.push_back(other->info());
+    dimension = triangulation.dimension();
+    if (dimension == 3) {
+      cells.reserve(4 * triangulation.number_of_finite_cells());
+      std::int64_t index = 0;
+      // CGAL stores every cell positively oriented.
+      for (auto cell : triangulation.finite_cell_handles()) {
+        cell->info() = index++;
+        for (int i = 0; i < 4; ++i) cells.push_back(cell->vertex(i)->info());
+      }
+      for (auto cell : triangulation.finite_cell_handles()) {
+        for (int i = 0; i < 4; ++i) {
+          auto other = cell->neighbor(i);
+          if (triangulation.is_infinite(other) || other->info() < cell->info()) continue;
+          const auto& opposite = other->vertex(other->index(cell))->point();
+          // perturb = false: the exact answer, ON_BOUNDARY for co-spherical points.
+          if (triangulation.side_of_sphere(cell, opposite, false) == CGAL::ON_BOUNDARY) {
+            cospherical.push_back(cell->info());
+            cospherical.push_back(other->info());
+          }
         }
       }
     }
+  }
+  if (dimension < 3) {
+    static const char* flat[] = {"all coincide", "are collinear", "are coplanar"};
+    throw py::value_error(std::string("points ") + flat[dimension < 0 ? 0 : dimension] + " (all " + std::to_string(n) +
+                          " of them): no 3D tetrahedralisation exists");
   }
   return py::make_tuple(to_array(cells, 4), to_array(cospherical, 2));
 }
 
 // Circumcentres with exact constructions, rounded to double: for slivers, whose
 // floating-point circumcentre is ill-conditioned.
-py::array_t<double> exact_circumcenters(
-    py::array_t<double, py::array::c_style | py::array::forcecast> points,
-    py::array_t<std::int64_t, py::array::c_style | py::array::forcecast> tets) {
+py::array_t<double> exact_circumcenters(const py::object& points_in, const py::object& tets_in) {
   using Exact = CGAL::Exact_predicates_exact_constructions_kernel;
+  Points points = check_points(points_in, "points", 0);
+  Indices tets = check_indices(tets_in, "tets", 4, "m", points.shape(0), "points");
   auto p = points.unchecked<2>();
   auto t = tets.unchecked<2>();
   const auto m = tets.shape(0);
   py::array_t<double> result({m, static_cast<py::ssize_t>(3)});
   auto out = result.mutable_unchecked<2>();
-  for (py::ssize_t c = 0; c < m; ++c) {
-    Exact::Point_3 corner[4];
-    for (int i = 0; i < 4; ++i) {
-      const auto v = t(c, i);
-      corner[i] = Exact::Point_3(p(v, 0), p(v, 1), p(v, 2));
+  py::ssize_t flat = -1;
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t c = 0; c < m; ++c) {
+      Exact::Point_3 corner[4];
+      for (int i = 0; i < 4; ++i) {
+        const auto v = t(c, i);
+        corner[i] = Exact::Point_3(p(v, 0), p(v, 1), p(v, 2));
+      }
+      if (CGAL::coplanar(corner[0], corner[1], corner[2], corner[3])) {
+        flat = c;
+        break;
+      }
+      const auto centre = CGAL::circumcenter(corner[0], corner[1], corner[2], corner[3]);
+      out(c, 0) = CGAL::to_double(centre.x());
+      out(c, 1) = CGAL::to_double(centre.y());
+      out(c, 2) = CGAL::to_double(centre.z());
     }
-    const auto centre = CGAL::circumcenter(corner[0], corner[1], corner[2], corner[3]);
-    out(c, 0) = CGAL::to_double(centre.x());
-    out(c, 1) = CGAL::to_double(centre.y());
-    out(c, 2) = CGAL::to_double(centre.z());
+  }
+  if (flat >= 0) {
+    throw py::value_error("tets row " + std::to_string(flat) +
+                          " is flat (its four corners are coplanar, exactly), so it has no circumcentre");
   }
   return result;
 }
@@ -105,7 +192,9 @@ PYBIND11_MODULE(_cgal, module) {
   module.doc() = "CGAL Delaunay tetrahedralisation for voro3d";
   module.def("delaunay_tetrahedra", &delaunay_tetrahedra, py::arg("points"),
              "(tets (m, 4) int64 positively oriented, cospherical (p, 2) int64 pairs of cells "
-             "sharing a circumsphere). Duplicate points keep the first index.");
+             "sharing a circumsphere) of finite (n, 3) points, n >= 4, not all on one plane. "
+             "Duplicate points keep the first index.");
   module.def("exact_circumcenters", &exact_circumcenters, py::arg("points"), py::arg("tets"),
-             "Circumcentres (m, 3) computed exactly, rounded to float64.");
+             "Circumcentres (m, 3) of the (m, 4) tets indexing finite (n, 3) points, computed exactly, "
+             "rounded to float64. Flat tets are a ValueError.");
 }

@@ -1,0 +1,77 @@
+"""The compiled extension voro3d._cgal: its answers, every input check, and the GIL released around CGAL."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from voro3d import _cgal
+
+RNG = np.random.default_rng(0)
+POINTS = RNG.random((30, 3))
+
+
+def test_delaunay_of_a_cube_and_its_cospherical_cells():
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    tets, cospherical = _cgal.delaunay_tetrahedra(corners)
+    a, b, c, d = (corners[tets[:, i]] for i in range(4))
+    volumes = np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)) / 6
+    assert (volumes > 0).all() and volumes.sum() == pytest.approx(1.0)
+    # All eight corners lie on one sphere: every face-adjacent pair of cells shares it.
+    assert len(cospherical) > 0 and set(np.unique(cospherical)) == set(range(len(tets)))
+
+
+def test_exact_circumcenters_are_equidistant():
+    tets, _ = _cgal.delaunay_tetrahedra(POINTS)
+    centres = _cgal.exact_circumcenters(POINTS, tets)
+    distances = np.linalg.norm(POINTS[tets] - centres[:, None, :], axis=2)
+    np.testing.assert_allclose(distances, distances[:, :1].repeat(4, axis=1), rtol=1e-9)
+
+
+@pytest.mark.parametrize("points, error, match", [
+    (np.zeros((5, 2)), ValueError, r"points must have shape \(n, 3\), got \(5, 2\)"),
+    (np.zeros(3), ValueError, r"points must have shape \(n, 3\), got \(3,\)"),
+    (POINTS[:3], ValueError, "points must hold at least 4 points, got 3"),
+    (np.vstack([POINTS, [[0.5, np.nan, 0.5]]]), ValueError, "points holds NaN or inf at row 30"),
+    (np.vstack([POINTS, [[np.inf, 0, 0]]]), ValueError, "points holds NaN or inf at row 30"),
+    (np.c_[POINTS[:, :2], np.zeros(30)], ValueError, "points are coplanar"),
+    (np.outer(np.arange(6), [1.0, 2.0, 3.0]), ValueError, "points are collinear"),
+    (np.ones((6, 3)), ValueError, "points all coincide"),
+    (POINTS > 0.5, TypeError, "points must be a real-valued array, got dtype bool"),
+    ("points", TypeError, "points must be a real-valued array, got dtype <U6"),
+    ([[0, 0, 0], [1, 0]], TypeError, "points must be an array, got list"),
+])
+def test_delaunay_rejects_bad_points(points, error, match):
+    with pytest.raises(error, match=match):
+        _cgal.delaunay_tetrahedra(points)
+
+
+@pytest.mark.parametrize("points, tets, error, match", [
+    (POINTS, np.array([[0, 1, 2, 30]]), ValueError, r"tets holds index 30 at row 0, outside \[0, 30\)"),
+    (POINTS, np.array([[0, 1, 2, 3], [0, -1, 2, 3]]), ValueError, r"tets holds index -1 at row 1, outside \[0, 30\)"),
+    (POINTS, np.array([[0, 1, 2]]), ValueError, r"tets must have shape \(m, 4\), got \(1, 3\)"),
+    (POINTS, np.array([[0.0, 1, 2, 3]]), TypeError, "tets must be an integer array of indices, got dtype float64"),
+    (POINTS, np.array([[0, 1, 2, 2]]), ValueError, "tets row 0 is flat"),
+    (np.c_[POINTS[:, :2], np.zeros(30)], np.array([[0, 1, 2, 3]]), ValueError, "tets row 0 is flat"),
+    (POINTS[:, :2], np.array([[0, 1, 2, 3]]), ValueError, r"points must have shape \(n, 3\), got \(30, 2\)"),
+    (np.where(np.eye(30, 3, dtype=bool), np.nan, POINTS), np.array([[0, 1, 2, 3]]), ValueError,
+     "points holds NaN or inf at row 0"),
+])
+def test_exact_circumcenters_rejects_bad_input(points, tets, error, match):
+    with pytest.raises(error, match=match):
+        _cgal.exact_circumcenters(points, tets)
+
+
+def test_delaunay_releases_the_gil():
+    points = RNG.random((100_000, 3))
+    done = threading.Event()
+    worker = threading.Thread(target=lambda: (_cgal.delaunay_tetrahedra(points), done.set()))
+    start = last = time.perf_counter()
+    worker.start()
+    longest = 0.0
+    while not done.is_set():  # this thread keeps running only while the worker does not hold the GIL
+        now = time.perf_counter()
+        longest, last = max(longest, now - last), now
+    worker.join()
+    elapsed = time.perf_counter() - start
+    assert elapsed > 0.2 and longest < 0.5 * elapsed, (longest, elapsed)
