@@ -102,7 +102,8 @@ def test_deterministic(sphere_sdf, sphere_mesh):
     (np.ones((8, 8, 9)), r"shape \(g, g, g\)"),
     (np.ones((1, 1, 1)), r"g >= 2"),
     (np.full((4, 4, 4), np.nan), "NaN or inf"),
-    (np.full((4, 4, 4), "a"), "numeric"),
+    (np.full((4, 4, 4), "a"), "floating-point or integer"),
+    (np.ones((4, 4, 4), bool), "floating-point or integer"),
 ])
 def test_sdf_errors(sdf, match, sphere_mesh):
     with pytest.raises(ValueError, match=match):

@@ -100,10 +100,11 @@ def test_network_input_crops_to_the_band():
     (np.zeros((32, 32), np.float32), r"shape \(g, g, g\)"),
     (np.zeros((32, 32, 30), np.float32), r"shape \(g, g, g\)"),
     (np.zeros((3, 3, 3), np.float32), r"g >= 4"),
-    (np.ones((16, 16, 16), np.int64), "floating-point"),
-    (np.ones((16, 16, 16), bool), "floating-point"),
-    (np.full((16, 16, 16), 0.5, np.float32), "no zero crossing.*outside"),
-    (np.full((16, 16, 16), -0.5, np.float32), "no zero crossing.*inside"),
+    (np.full((16, 16, 16), "a"), "floating-point or integer"),
+    (np.ones((16, 16, 16), bool), "floating-point or integer"),
+    (np.full((16, 16, 16), 0.5, np.float32), r"no zero crossing: values span \[0.5, 0.5\], no node is inside"),
+    (np.full((16, 16, 16), -0.5, np.float32), "no zero crossing.*no node is outside"),
+    (np.minimum(np.arange(16.0) - 3, 0)[:, None, None] * np.ones((16, 16, 16)), "no node is outside"),
 ])
 def test_bad_grids(predictor, sdf, match):
     with pytest.raises(ValueError, match=match):

@@ -93,3 +93,14 @@ def test_check_accepts_tensor_meshes():
 def test_bad_mesh_type():
     with pytest.raises(TypeError, match="mesh must be"):
         check_watertight("not a mesh")
+
+
+@pytest.mark.parametrize("mesh, match", [
+    ((TET_V, np.zeros((0, 3), int)), "mesh has no triangles"),
+    ((np.where(TET_V == 1, np.nan, TET_V), TET_F), "mesh vertices holds 3 rows with NaN or inf"),
+    ((TET_V, TET_F + 1), r"mesh triangles index vertices outside \[0, 4\)"),
+    ((TET_V[:, :2], TET_F), r"mesh vertices must have shape \(n, 3\)"),
+])
+def test_bad_mesh_arrays(mesh, match):
+    with pytest.raises(ValueError, match=match):
+        check_watertight(mesh)

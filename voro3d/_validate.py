@@ -41,6 +41,32 @@ def as_mask(value, name: str, length: int) -> np.ndarray:
     raise ValueError(f"{name} must be a boolean array, got dtype {array.dtype}")
 
 
+def as_sdf_grid(value, name: str = "sdf", *, min_size: int = 2, dtype=np.float64) -> np.ndarray:
+    """Return ``value`` as a finite ``(g, g, g)`` grid of ``dtype`` with a zero crossing.
+
+    Raises
+    ------
+    ValueError
+        Not a floating-point or integer array, not a cube with ``g >= min_size``, NaN or inf
+        values, or no sign change (a negative node, inside, and a positive one, outside, are both
+        needed).
+    """
+    array = np.asarray(value)
+    if array.dtype == bool or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"{name} must be a floating-point or integer array, got dtype {array.dtype}")
+    if array.ndim != 3 or len(set(array.shape)) != 1 or array.shape[0] < min_size:
+        raise ValueError(f"{name} must have shape (g, g, g) with g >= {min_size}, got {array.shape}")
+    array = array.astype(dtype, copy=False)
+    bad = int((~np.isfinite(array)).sum())
+    if bad:
+        raise ValueError(f"{name} holds {bad} NaN or inf values")
+    low, high = array.min(), array.max()
+    if not low < 0 < high:
+        missing = "inside (negative)" if low >= 0 else "outside (positive)"
+        raise ValueError(f"{name} has no zero crossing: values span [{low:.4g}, {high:.4g}], no node is {missing}")
+    return array
+
+
 def positive_int(value, name: str, *, minimum: int = 1) -> int:
     """Return ``value`` as an int ``>= minimum``."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):

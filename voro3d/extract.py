@@ -106,10 +106,11 @@ def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE)
         If the result fails the cheap watertightness checks (a bug, reported loudly).
     """
     vertices, triangles = voronoi_surface(generators, occupancy, tolerance=tolerance)
-    from .watertight import assert_closed_manifold, to_open3d
+    from .io import to_triangle_mesh
+    from .watertight import assert_closed_manifold
 
     assert_closed_manifold(vertices, triangles)
-    return to_open3d(vertices, triangles)
+    return to_triangle_mesh(vertices, triangles, normals=True)
 
 
 def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE):

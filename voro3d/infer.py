@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._validate import as_sdf_grid
 from .extract import VoroMesh
 
 # The shipped network is package data (its card, config and loss curve are in the repository's
@@ -76,27 +77,15 @@ class NetworkInput:
 
 
 def check_sdf(sdf) -> np.ndarray:
-    """Validate an SDF grid and return it as float32.
+    """Validate an SDF grid and return it as float32 (:func:`voro3d._validate.as_sdf_grid` with ``g >= 4``).
 
     Raises
     ------
     ValueError
-        Not a floating-point ``(g, g, g)`` array with ``g >= 4``, NaN or inf values, or no sign
-        change (every node inside, or every node outside).
+        Not a floating-point or integer ``(g, g, g)`` array with ``g >= 4``, NaN or inf values, or
+        no sign change (no negative node, or no positive one).
     """
-    array = np.asarray(sdf)
-    if not np.issubdtype(array.dtype, np.floating):
-        raise ValueError(f"sdf must be a floating-point array, got dtype {array.dtype}")
-    if array.ndim != 3 or len(set(array.shape)) != 1 or array.shape[0] < 4:
-        raise ValueError(f"sdf must have shape (g, g, g) with g >= 4, got {array.shape}")
-    bad = int((~np.isfinite(array)).sum())
-    if bad:
-        raise ValueError(f"sdf holds {bad} NaN or inf values")
-    inside = array < 0
-    if inside.all() or not inside.any():
-        side = "inside (negative)" if inside.all() else "outside (non-negative)"
-        raise ValueError(f"sdf has no zero crossing: every node is {side}")
-    return array.astype(np.float32, copy=False)
+    return as_sdf_grid(sdf, "sdf", min_size=4, dtype=np.float32)
 
 
 def network_input(sdf: np.ndarray, *, near: float, margin: int) -> NetworkInput:

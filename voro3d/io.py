@@ -110,14 +110,39 @@ def mesh_arrays(mesh, name: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
     return vertices, np.ascontiguousarray(triangles, dtype=np.int64)
 
 
-def to_triangle_mesh(vertices: np.ndarray, triangles: np.ndarray):
-    """``open3d.geometry.TriangleMesh`` from ``(v, 3)`` float vertices and ``(t, 3)`` int triangles (no normals)."""
+def to_triangle_mesh(vertices: np.ndarray, triangles: np.ndarray, *, normals: bool = False):
+    """``open3d.geometry.TriangleMesh`` from ``(v, 3)`` float vertices and ``(t, 3)`` int triangles.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float
+    triangles : (t, 3) int
+    normals : bool, keyword-only
+        Also set area-weighted vertex normals (:func:`vertex_normals`); default none.
+    """
     import open3d as o3d
 
-    return o3d.geometry.TriangleMesh(
+    mesh = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(np.ascontiguousarray(vertices, np.float64)),
         o3d.utility.Vector3iVector(np.ascontiguousarray(triangles, np.int32)),
     )
+    if normals:
+        # Area-weighted, as Open3D's compute_vertex_normals, which takes 0.7 s at 2e5 triangles here.
+        mesh.vertex_normals = o3d.utility.Vector3dVector(vertex_normals(vertices, triangles))
+    return mesh
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals ``(v, 3)`` float64; zero at vertices of no triangle of positive area."""
+    vertices = np.asarray(vertices, np.float64)
+    triangles = np.asarray(triangles)
+    a = vertices[triangles[:, 0]]
+    face = np.cross(vertices[triangles[:, 1]] - a, vertices[triangles[:, 2]] - a)
+    corners = triangles.reshape(-1)
+    n = vertices.shape[0]
+    summed = np.stack([np.bincount(corners, weights=np.repeat(face[:, d], 3), minlength=n) for d in range(3)], axis=1)
+    length = np.linalg.norm(summed, axis=1, keepdims=True)
+    return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
 
 
 def load_mesh(path, *, weld: bool = True):

@@ -30,8 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_path, mesh_arrays, to_triangle_mesh
-from .watertight import vertex_normals
+from .io import atomic_path, mesh_arrays, to_triangle_mesh, vertex_normals
 
 BACKENDS = ("auto", "open3d", "matplotlib")
 SHADINGS = ("flat", "smooth")
@@ -674,15 +673,6 @@ def render_meshes(meshes, path, *, titles=None, colors=None, size=(640, 480), vi
     return _save(_page(panels, titles), path)
 
 
-def _distances(points, ref_vertices, ref_triangles) -> np.ndarray:
-    """Unsigned distance ``(n,)`` float64 from ``points`` to the triangles (float32 inside Open3D)."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(ref_vertices.astype(np.float32)), o3d.core.Tensor(ref_triangles.astype(np.uint32)))
-    return scene.compute_distance(o3d.core.Tensor(np.ascontiguousarray(points, np.float32))).numpy().astype(np.float64)
-
-
 def render_error_map(mesh, reference, path, *, vmax=None, cmap="viridis", title=None, size=(640, 480), view=None,
                      up="z", shading="flat", backend="auto") -> Path:
     """Colour ``mesh`` by each vertex's distance to ``reference`` and write a PNG with a colour bar.
@@ -721,6 +711,8 @@ def render_error_map(mesh, reference, path, *, vmax=None, cmap="viridis", title=
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
+    from .sampling import InsideOutside
+
     vertices, triangles = mesh_arrays(mesh, "mesh")
     ref_vertices, ref_triangles = mesh_arrays(reference, "reference")
     path = _png_path(path)
@@ -737,7 +729,9 @@ def render_error_map(mesh, reference, path, *, vmax=None, cmap="viridis", title=
     except (KeyError, TypeError):
         raise ValueError(f"cmap must be a matplotlib colour map name, got {cmap!r}") from None
 
-    distances = _distances(vertices, ref_vertices, ref_triangles)
+    # allow_open: only distances are asked, which need no inside.
+    to_reference = InsideOutside((ref_vertices, ref_triangles), allow_open=True)
+    distances = to_reference.unsigned_distance(vertices)
     largest = float(distances.max())
     if vmax is None:
         # An exact match has no scale of its own; borrow one from the mesh's size.
@@ -755,7 +749,7 @@ def render_error_map(mesh, reference, path, *, vmax=None, cmap="viridis", title=
         panel = None if panels is None else panels[0]
     if panel is None:
         small_vertices, small_triangles = _decimate(vertices, triangles, MAX_MATPLOTLIB_FACES)
-        small_distances = distances if small_vertices is vertices else _distances(small_vertices, ref_vertices, ref_triangles)
+        small_distances = distances if small_vertices is vertices else to_reference.unsigned_distance(small_vertices)
         panel = _matplotlib_panel(small_vertices, small_triangles, camera, rgb=colormap(norm(small_distances))[:, :3],
                                   shading=shading, ambient=0.5, split_limit=SPLIT_FRACTION * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))))
 

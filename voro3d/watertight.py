@@ -5,7 +5,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .io import to_triangle_mesh
+from .io import mesh_arrays, to_triangle_mesh
 from .topology import edge_groups, twins, umbrellas
 
 
@@ -86,11 +86,17 @@ def check_watertight(mesh, *, self_intersection: bool = True) -> WatertightRepor
     Returns
     -------
     WatertightReport
+
+    Raises
+    ------
+    ValueError
+        ``mesh`` has no triangles, NaN/inf vertices or indices out of range.
+    TypeError
+        ``mesh`` is none of the accepted kinds.
     """
-    vertices, triangles = _arrays(mesh)
+    vertices, triangles = mesh_arrays(mesh)
     closed, edge_manifold, vertex_manifold, consistent = _topology_flags(vertices, triangles)
-    o3d_mesh = to_open3d(vertices, triangles, normals=False)
-    orientable = bool(o3d_mesh.is_orientable()) if triangles.size else False
+    orientable = bool(to_triangle_mesh(vertices, triangles).is_orientable())
     pairs = touching = None
     if self_intersection:
         pairs, touching = self_intersections(vertices, triangles)
@@ -122,7 +128,7 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.
 
     if triangles.size == 0:
         return np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64)
-    candidates = np.asarray(to_open3d(vertices, triangles, normals=False).get_self_intersecting_triangles())
+    candidates = np.asarray(to_triangle_mesh(vertices, triangles).get_self_intersecting_triangles())
     candidates = candidates.reshape(-1, 2).astype(np.int64)
     a = vertices[triangles[candidates[:, 0]]]
     b = vertices[triangles[candidates[:, 1]]]
@@ -130,36 +136,3 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.
     return confirm_intersections(vertices, triangles, candidates[~shared_position]), candidates[shared_position]
 
 
-def _arrays(mesh):
-    if isinstance(mesh, tuple) and len(mesh) == 2:
-        return np.asarray(mesh[0], np.float64), np.asarray(mesh[1], np.int64).reshape(-1, 3)
-    if hasattr(mesh, "triangles") and hasattr(mesh, "vertices"):
-        vertices, triangles = mesh.vertices, mesh.triangles
-        if hasattr(vertices, "numpy"):  # open3d.t.geometry.TriangleMesh has no such attributes
-            vertices, triangles = vertices.numpy(), triangles.numpy()
-        return np.asarray(vertices, np.float64), np.asarray(triangles, np.int64).reshape(-1, 3)
-    if hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):
-        return mesh.vertex.positions.numpy().astype(np.float64), mesh.triangle.indices.numpy().astype(np.int64)
-    raise TypeError(f"mesh must be an open3d TriangleMesh or (vertices, triangles), got {type(mesh).__name__}")
-
-
-def to_open3d(vertices: np.ndarray, triangles: np.ndarray, *, normals: bool = True):
-    """Arrays to ``open3d.geometry.TriangleMesh`` (with vertex normals unless ``normals=False``)."""
-    import open3d as o3d
-
-    mesh = to_triangle_mesh(vertices, triangles)
-    if normals:
-        # Area-weighted, as Open3D's compute_vertex_normals, which takes 0.7 s at 2e5 triangles here.
-        mesh.vertex_normals = o3d.utility.Vector3dVector(vertex_normals(vertices, triangles))
-    return mesh
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals, (n, 3) float64."""
-    a = vertices[triangles[:, 0]]
-    face = np.cross(vertices[triangles[:, 1]] - a, vertices[triangles[:, 2]] - a)
-    corners = triangles.reshape(-1)
-    n = vertices.shape[0]
-    summed = np.stack([np.bincount(corners, weights=np.repeat(face[:, d], 3), minlength=n) for d in range(3)], axis=1)
-    length = np.linalg.norm(summed, axis=1, keepdims=True)
-    return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
