@@ -1,5 +1,5 @@
-// Delaunay tetrahedralisation with CGAL's exact predicates, returned as numpy arrays.
-// Python walks no CGAL objects: the cells are copied out in one pass.
+// Delaunay tetrahedralisation and triangle-mesh self-intersections with CGAL's exact predicates,
+// returned as numpy arrays. Python walks no CGAL objects: results are copied out in one pass.
 //
 // Every function checks its arrays (dtype, shape, finite coordinates, index bounds) and raises
 // ValueError or TypeError naming the argument, then releases the GIL for the CGAL work.
@@ -11,7 +11,10 @@
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Triangulation_cell_base_with_info_3.h>
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>
+#include <CGAL/box_intersection_d.h>
+#include <CGAL/intersections.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -188,6 +191,97 @@ py::array_t<double> exact_circumcenters(const py::object& points_in, const py::o
   return result;
 }
 
+namespace {
+using Point = Kernel::Point_3;
+using Segment = Kernel::Segment_3;
+using Triangle = Kernel::Triangle_3;
+
+// The point set of a mesh triangle: a triangle, or, when its corners are collinear, the segment
+// between the two outermost of them, or one point. CGAL's Triangle_3 tests require a
+// non-degenerate triangle.
+struct Piece {
+  int kind;  // 0 point (a), 1 segment (a, b), 2 triangle (a, b, c)
+  Point a, b, c;
+};
+
+Piece piece_of(const Point& a, const Point& b, const Point& c) {
+  if (!CGAL::collinear(a, b, c)) return {2, a, b, c};
+  if (a == b && b == c) return {0, a, a, a};
+  if (CGAL::collinear_are_ordered_along_line(a, b, c)) return {1, a, c, c};
+  if (CGAL::collinear_are_ordered_along_line(b, a, c)) return {1, b, c, c};
+  return {1, a, b, b};
+}
+
+// Whether the closed point sets meet (touching counts), decided with exact predicates only.
+bool meet(const Piece& p, const Piece& q) {
+  if (p.kind < q.kind) return meet(q, p);
+  switch (3 * p.kind + q.kind) {
+    case 8: return CGAL::do_intersect(Triangle(p.a, p.b, p.c), Triangle(q.a, q.b, q.c));
+    case 7: return CGAL::do_intersect(Triangle(p.a, p.b, p.c), Segment(q.a, q.b));
+    case 6: return Triangle(p.a, p.b, p.c).has_on(q.a);
+    case 4: return CGAL::do_intersect(Segment(p.a, p.b), Segment(q.a, q.b));
+    case 3: return Segment(p.a, p.b).has_on(q.a);
+    default: return p.a == q.a;
+  }
+}
+}  // namespace
+
+// Pairs (i < j) of triangles that share no vertex index and whose closed point sets intersect,
+// decided exactly. Candidates are the pairs whose bounding boxes meet (CGAL's box intersection,
+// Zomorodian and Edelsbrunner), so the cost follows the number of nearby pairs, not its square.
+py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in, const py::object& triangles_in) {
+  Points vertices = check_points(vertices_in, "vertices", 0);
+  Indices triangles = check_indices(triangles_in, "triangles", 3, "t", vertices.shape(0), "vertices");
+  auto v = vertices.unchecked<2>();
+  auto t = triangles.unchecked<2>();
+  const auto f = static_cast<std::size_t>(triangles.shape(0));
+  std::vector<std::int64_t> pairs;
+  {
+    py::gil_scoped_release release;
+    std::vector<Point> points;
+    points.reserve(static_cast<std::size_t>(v.shape(0)));
+    for (py::ssize_t i = 0; i < v.shape(0); ++i) points.emplace_back(v(i, 0), v(i, 1), v(i, 2));
+    using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::size_t>;
+    std::vector<Piece> pieces;
+    std::vector<Box> boxes;
+    pieces.reserve(f);
+    boxes.reserve(f);
+    for (std::size_t i = 0; i < f; ++i) {
+      const Point& a = points[t(i, 0)];
+      const Point& b = points[t(i, 1)];
+      const Point& c = points[t(i, 2)];
+      pieces.push_back(piece_of(a, b, c));
+      boxes.emplace_back(a.bbox() + b.bbox() + c.bbox(), i);  // doubles: the boxes are exact
+    }
+    auto shares_index = [&](std::size_t i, std::size_t j) {
+      for (int k = 0; k < 3; ++k) {
+        for (int l = 0; l < 3; ++l) {
+          if (t(i, k) == t(j, l)) return true;
+        }
+      }
+      return false;
+    };
+    // Closed boxes: boxes that only touch are candidates too.
+    CGAL::box_self_intersection_d(boxes.begin(), boxes.end(), [&](const Box& x, const Box& y) {
+      const std::size_t i = std::min(x.info(), y.info());
+      const std::size_t j = std::max(x.info(), y.info());
+      if (!shares_index(i, j) && meet(pieces[i], pieces[j])) {
+        pairs.push_back(static_cast<std::int64_t>(i));
+        pairs.push_back(static_cast<std::int64_t>(j));
+      }
+    });
+    // Sorted, so that the order does not depend on how the box intersection split its work.
+    std::vector<std::pair<std::int64_t, std::int64_t>> sorted(pairs.size() / 2);
+    for (std::size_t k = 0; k < sorted.size(); ++k) sorted[k] = {pairs[2 * k], pairs[2 * k + 1]};
+    std::sort(sorted.begin(), sorted.end());
+    for (std::size_t k = 0; k < sorted.size(); ++k) {
+      pairs[2 * k] = sorted[k].first;
+      pairs[2 * k + 1] = sorted[k].second;
+    }
+  }
+  return to_array(pairs, 2);
+}
+
 PYBIND11_MODULE(_cgal, module) {
   module.doc() = "CGAL Delaunay tetrahedralisation for voro3d";
   module.def("delaunay_tetrahedra", &delaunay_tetrahedra, py::arg("points"),
@@ -197,4 +291,8 @@ PYBIND11_MODULE(_cgal, module) {
   module.def("exact_circumcenters", &exact_circumcenters, py::arg("points"), py::arg("tets"),
              "Circumcentres (m, 3) of the (m, 4) tets indexing finite (n, 3) points, computed exactly, "
              "rounded to float64. Flat tets are a ValueError.");
+  module.def("self_intersecting_pairs", &self_intersecting_pairs, py::arg("vertices"), py::arg("triangles"),
+             "(p, 2) int64 sorted pairs i < j of the (t, 3) triangles over finite (n, 3) vertices that share "
+             "no vertex index and intersect, touching included, decided with exact predicates; collinear "
+             "triangles count as their segment.");
 }

@@ -62,6 +62,32 @@ def test_exact_circumcenters_rejects_bad_input(points, tets, error, match):
         _cgal.exact_circumcenters(points, tets)
 
 
+TRIANGLES = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+
+
+def test_self_intersecting_pairs_are_sorted_and_skip_neighbours():
+    # Triangle 2 pierces 0 and 1, which share vertex 1 by index (neighbours, never tested).
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 0, 0],
+                         [0.6, 0.1, -1], [0.6, 0.1, 1], [1.2, 0.4, 0.0]], float)
+    pairs = _cgal.self_intersecting_pairs(vertices, np.array([[0, 1, 2], [1, 4, 3], [5, 6, 7]]))
+    assert pairs.dtype == np.int64 and pairs.tolist() == [[0, 2], [1, 2]]
+    assert _cgal.self_intersecting_pairs(vertices, np.zeros((0, 3), int)).shape == (0, 2)
+
+
+@pytest.mark.parametrize("vertices, triangles, error, match", [
+    (POINTS, TRIANGLES + 22, ValueError, r"triangles holds index 30 at row 2, outside \[0, 30\) for the 30 rows of vertices"),
+    (POINTS, -TRIANGLES, ValueError, r"triangles holds index -1 at row 0"),
+    (POINTS, TRIANGLES[:, :2], ValueError, r"triangles must have shape \(t, 3\), got \(3, 2\)"),
+    (POINTS, TRIANGLES.astype(float), TypeError, "triangles must be an integer array of indices, got dtype float64"),
+    (POINTS[:, :2], TRIANGLES, ValueError, r"vertices must have shape \(n, 3\), got \(30, 2\)"),
+    (np.where(np.arange(30)[:, None] == 7, np.inf, POINTS), TRIANGLES, ValueError, "vertices holds NaN or inf at row 7"),
+    (None, TRIANGLES, TypeError, "vertices must be a real-valued array, got dtype object"),
+])
+def test_self_intersecting_pairs_rejects_bad_input(vertices, triangles, error, match):
+    with pytest.raises(error, match=match):
+        _cgal.self_intersecting_pairs(vertices, triangles)
+
+
 def test_delaunay_releases_the_gil():
     points = RNG.random((100_000, 3))
     done = threading.Event()

@@ -3,9 +3,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from voro3d.intersect import confirm_intersections
 from voro3d.topology import split_nonmanifold
-from voro3d.watertight import assert_closed_manifold, check_watertight, signed_volume
+from voro3d.watertight import assert_closed_manifold, check_watertight, self_intersections, signed_volume
 
 # A unit tetrahedron with outward normals.
 TET_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
@@ -63,14 +62,68 @@ def test_crossing_triangles_are_found_exactly():
     both = cube + moved
     report = check_watertight(both)
     assert report.self_intersecting_pairs > 0 and not report.watertight
-    # Near-touching but separate triangles (10^-12 apart) are not confirmed.
+    # Near-touching but separate triangles (10^-12 apart) do not intersect.
     a = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
-    b = a + [0, 0, 1e-12]
-    vertices = np.vstack([a, b])
-    assert len(confirm_intersections(vertices, np.array([[0, 1, 2], [3, 4, 5]]), np.array([[0, 1]]))) == 0
-    c = np.array([[0.2, 0.2, -1], [0.2, 0.2, 1], [2, 2, 0]], float)
-    vertices = np.vstack([a, c])
-    assert len(confirm_intersections(vertices, np.array([[0, 1, 2], [3, 4, 5]]), np.array([[0, 1]]))) == 1
+    assert _pairs(a, a + [0, 0, 1e-12]) == ([], [])
+    assert _pairs(a, np.array([[0.2, 0.2, -1], [0.2, 0.2, 1], [2, 2, 0]], float)) == ([(0, 1)], [])
+
+
+TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+
+
+def _pairs(*triangles):
+    """Crossing and touching pairs of a soup of separately indexed triangles, as lists of tuples."""
+    vertices = np.vstack(triangles)
+    crossing, touching = self_intersections(vertices, np.arange(len(vertices)).reshape(-1, 3))
+    return [tuple(p) for p in crossing.tolist()], [tuple(p) for p in touching.tolist()]
+
+
+@pytest.mark.parametrize("other, expected", [
+    # A shared corner position under other indices: touching, not crossing.
+    (np.array([[0, 0, 0], [-1, 0, 0.5], [0, -1, 0.5]]), ([], [(0, 1)])),
+    # Touching at a point inside an edge, and an edge lying on the face: crossing (closed triangles).
+    (np.array([[0.5, 0, 0], [0.5, -1, 1], [0.5, -1, -1]]), ([(0, 1)], [])),
+    (np.array([[0.2, 0.2, 0], [0.4, 0.2, 0], [0.3, 0.3, 1]]), ([(0, 1)], [])),
+    # Coplanar: overlapping, one inside the other, and apart by one ulp-sized gap.
+    (np.array([[0.5, 0.5, 0], [-0.5, 0.2, 0], [0.2, -0.5, 0]]), ([(0, 1)], [])),
+    (np.array([[0.1, 0.1, 0], [0.3, 0.1, 0], [0.1, 0.3, 0]]), ([(0, 1)], [])),
+    (np.array([[0.5 + 1e-15, 0.5 + 1e-15, 0], [1, 1, 0], [2, 0.5, 0]]), ([], [])),
+    (np.array([[0.5, 0.5, 0], [1, 1, 0], [2, 0.5, 0]]), ([(0, 1)], [])),
+    # Degenerate triangles: collinear corners are their segment, three equal corners a point.
+    (np.array([[0.25, 0.25, -1], [0.25, 0.25, 0.5], [0.25, 0.25, 1]]), ([(0, 1)], [])),
+    (np.array([[0.25, 0.25, 1], [0.25, 0.25, 2], [0.25, 0.25, -1]]), ([(0, 1)], [])),
+    (np.array([[0.25, 0.25, -1], [0.25, 0.25, 2], [0.25, 0.25, 1.5]]), ([(0, 1)], [])),
+    (np.array([[0.75, 0.75, -1], [0.75, 0.75, 0.5], [0.75, 0.75, 1]]), ([], [])),
+    (np.array([[0.3, 0.3, 0]] * 3), ([(0, 1)], [])),
+    (np.array([[0.3, 0.3, 1e-300]] * 3), ([], [])),
+])
+def test_exact_pair_cases(other, expected):
+    assert _pairs(TRIANGLE, np.asarray(other, float)) == expected
+
+
+def test_neighbours_sharing_an_index_are_not_tested():
+    # Two coplanar triangles that overlap but share vertex 0 (by index): not reported; given a
+    # copy of that vertex instead they are.
+    vertices = np.vstack([TRIANGLE, [[0.5, 0.5, 0], [-0.5, 0.2, 0]]])
+    crossing, touching = self_intersections(vertices, np.array([[0, 1, 2], [0, 3, 4]]))
+    assert crossing.size == touching.size == 0
+    vertices = np.vstack([vertices, vertices[:1]])
+    crossing, touching = self_intersections(vertices, np.array([[0, 1, 2], [5, 3, 4]]))
+    assert crossing.size == 0 and touching.tolist() == [[0, 1]]
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_random_soups_agree_with_open3d(seed):
+    # Generic random triangles (no degeneracy closer than float rounding): Open3D's
+    # floating-point test must find the same pairs as the exact one.
+    rng = np.random.default_rng(seed)
+    corners = rng.uniform(0, 1, (60, 1, 3)) + rng.uniform(-0.3, 0.3, (60, 3, 3))
+    vertices, triangles = corners.reshape(-1, 3), np.arange(180).reshape(-1, 3)
+    crossing, touching = self_intersections(vertices, triangles)
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
+    expected = np.sort(np.asarray(mesh.get_self_intersecting_triangles()), axis=1)
+    assert touching.size == 0 and len(crossing) > 10
+    assert sorted(map(tuple, crossing.tolist())) == sorted(map(tuple, expected.tolist()))
 
 
 def test_assert_closed_manifold_names_the_failures():

@@ -80,8 +80,8 @@ def check_watertight(mesh, *, self_intersection: bool = True) -> WatertightRepor
     ----------
     mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
     self_intersection : bool
-        Run Open3D's triangle-pair intersection test (seconds at 10^5 triangles).
-        Pairs sharing a vertex index are not tested by Open3D.
+        Test every pair of triangles that share no vertex index for an intersection, exactly
+        (:func:`self_intersections`; about 0.3 s at 10^5 triangles).
 
     Returns
     -------
@@ -112,27 +112,40 @@ def check_watertight(mesh, *, self_intersection: bool = True) -> WatertightRepor
 
 
 def self_intersections(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle pairs that intersect, confirmed exactly.
+    """Triangle pairs that intersect, decided exactly.
 
-    Open3D proposes candidates (pairs sharing a vertex index are never proposed); each is
-    confirmed with exact arithmetic. Pairs that share a vertex *position* under different
-    indices (sheets of a non-manifold solid touching at a duplicated vertex) are returned
-    apart, as touching.
+    The compiled extension (``voro3d._cgal.self_intersecting_pairs``) finds the pairs whose
+    bounding boxes meet and tests them with CGAL's exact predicates: closed triangles, so
+    touching counts; a triangle with collinear corners counts as its segment. Pairs that share a
+    vertex index (neighbours) are not tested. Pairs that share a vertex *position* under
+    different indices (sheets of a non-manifold solid touching at a duplicated vertex) are
+    returned apart, as touching.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    triangles : (t, 3) int
 
     Returns
     -------
     crossing : (p, 2) int64
+        Pairs ``i < j`` of triangle indices, sorted.
     touching : (q, 2) int64
-    """
-    from .intersect import confirm_intersections
 
+    Raises
+    ------
+    ValueError
+        ``vertices`` not finite ``(n, 3)``, ``triangles`` not ``(t, 3)`` or indexing outside ``vertices``.
+    """
+    from . import _cgal
+
+    vertices, triangles = np.asarray(vertices, np.float64), np.asarray(triangles)
     if triangles.size == 0:
         return np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64)
-    candidates = np.asarray(to_triangle_mesh(vertices, triangles).get_self_intersecting_triangles())
-    candidates = candidates.reshape(-1, 2).astype(np.int64)
-    a = vertices[triangles[candidates[:, 0]]]
-    b = vertices[triangles[candidates[:, 1]]]
+    pairs = _cgal.self_intersecting_pairs(vertices, triangles)
+    a = vertices[triangles[pairs[:, 0]]]
+    b = vertices[triangles[pairs[:, 1]]]
     shared_position = (a[:, :, None, :] == b[:, None, :, :]).all(axis=3).any(axis=(1, 2))
-    return confirm_intersections(vertices, triangles, candidates[~shared_position]), candidates[shared_position]
+    return pairs[~shared_position], pairs[shared_position]
 
 
