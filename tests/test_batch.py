@@ -10,8 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from voro3d.batch import (EXIT_INTERRUPTED, EXIT_OK, EXIT_SOME_FAILED, RESULTS_NAME, ShapeTask, _complete,
-                          _cpu_slots, _predictor, _ResultsLog, add_batch_parser, process_shape, run_batch)
+from voro3d.batch import (EXIT_INTERRUPTED, EXIT_OK, EXIT_SOME_FAILED, RESULTS_NAME, ShapeTask, add_batch_parser,
+                          process_shape, run_batch)
+from voro3d.batch.local import _cpu_slots
+from voro3d.batch.plan import _complete, _ResultsLog
+from voro3d.batch.worker import _predictor
 from voro3d.infer import DEFAULT_MODEL
 from voro3d.io import load_mesh, mesh_arrays, save_mesh
 from voro3d.shapes import example_mesh
@@ -133,7 +136,7 @@ _PINNED_WORKER = """
 import os, sys
 os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 from voro3d import sampling
-from voro3d.batch import _prepare
+from voro3d.batch.worker import _prepare
 before = sampling.WINDING_THREADS
 _prepare("learned", sys.argv[1], 2)
 print(before, sampling.WINDING_THREADS)
@@ -166,7 +169,8 @@ class Missing:
 for name in BLOCKED:
     sys.modules.pop(name, None)
 sys.meta_path.insert(0, Missing())
-from voro3d.batch import _cpu_seconds, _peak_memory_mb, run_batch
+from voro3d.batch import run_batch
+from voro3d.batch.worker import _cpu_seconds, _peak_memory_mb
 from voro3d.cli import main
 
 for argv in (["--help"], ["batch", "--help"]):
