@@ -1,5 +1,8 @@
 """Headless pictures: PNGs that show something, shared cameras, atomic writes, every bad input."""
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import open3d as o3d
@@ -7,6 +10,7 @@ import pytest
 from PIL import Image
 
 from voro3d import render
+from voro3d.render import open3d_backend
 from voro3d.shapes import example_mesh
 
 SMALL = (160, 120)
@@ -29,7 +33,7 @@ def bracket():
 @pytest.fixture
 def no_open3d(monkeypatch):
     """Make ``backend="auto"`` resolve without running the (slow) child-process probe."""
-    monkeypatch.setattr(render, "_OPEN3D_STATUS", render.Open3DStatus(False, False, "disabled in tests"))
+    monkeypatch.setattr(open3d_backend, "_OPEN3D_STATUS", render.Open3DStatus(False, False, "disabled in tests"))
 
 
 # --------------------------------------------------------------------------- render_meshes
@@ -253,7 +257,7 @@ def test_auto_uses_matplotlib_without_open3d(tmp_path, sphere, no_open3d, monkey
     def no_child(*args, **kwargs):
         raise AssertionError("no Open3D child should start")
 
-    monkeypatch.setattr(render, "_run_child", no_child)
+    monkeypatch.setattr(open3d_backend, "_run_child", no_child)
     assert _pixels(render.render_meshes([sphere], tmp_path / "x.png", size=SMALL)).std() > 10
     with pytest.raises(RuntimeError, match="matplotlib"):
         render.render_meshes([sphere], tmp_path / "y.png", size=SMALL, backend="open3d")
@@ -261,23 +265,23 @@ def test_auto_uses_matplotlib_without_open3d(tmp_path, sphere, no_open3d, monkey
 
 @pytest.mark.parametrize("works", [True, None])
 def test_auto_skips_software_rasterisers(tmp_path, sphere, monkeypatch, works):
-    monkeypatch.setattr(render, "_OPEN3D_STATUS", render.Open3DStatus(works, True, "llvmpipe"))
-    monkeypatch.setattr(render, "_run_child", lambda *a, **k: pytest.fail("auto must not use llvmpipe"))
+    monkeypatch.setattr(open3d_backend, "_OPEN3D_STATUS", render.Open3DStatus(works, True, "llvmpipe"))
+    monkeypatch.setattr(open3d_backend, "_run_child", lambda *a, **k: pytest.fail("auto must not use llvmpipe"))
     assert _pixels(render.render_meshes([sphere], tmp_path / "x.png", size=SMALL)).std() > 10
 
 
 def test_auto_falls_back_when_the_open3d_child_fails(tmp_path, sphere, monkeypatch):
-    monkeypatch.setattr(render, "_OPEN3D_STATUS", render.Open3DStatus(True, False, "a GPU"))
+    monkeypatch.setattr(open3d_backend, "_OPEN3D_STATUS", render.Open3DStatus(True, False, "a GPU"))
 
     def stalled(*args, **kwargs):
-        raise render._Open3DFailed("the Open3D renderer took longer than 1 s and was stopped")
+        raise open3d_backend._Open3DFailed("the Open3D renderer took longer than 1 s and was stopped")
 
-    monkeypatch.setattr(render, "_run_child", stalled)
+    monkeypatch.setattr(open3d_backend, "_run_child", stalled)
     with pytest.warns(RuntimeWarning, match="matplotlib"):
         out = render.render_meshes([sphere], tmp_path / "x.png", size=SMALL)
     assert _pixels(out).std() > 10
-    assert render._OPEN3D_STATUS.works is False  # later pictures do not wait again
-    monkeypatch.setattr(render, "_OPEN3D_STATUS", render.Open3DStatus(True, False, "a GPU"))
+    assert open3d_backend._OPEN3D_STATUS.works is False  # later pictures do not wait again
+    monkeypatch.setattr(open3d_backend, "_OPEN3D_STATUS", render.Open3DStatus(True, False, "a GPU"))
     with pytest.raises(RuntimeError, match="longer than"):
         render.render_meshes([sphere], tmp_path / "y.png", size=SMALL, backend="open3d")
 
@@ -289,25 +293,36 @@ def test_auto_falls_back_when_the_open3d_child_fails(tmp_path, sphere, monkeypat
     ("Vulkan device driver: llvmpipe Mesa 22.3.6\nVORO3D-PANEL-DONE", None, (None, True)),
 ])
 def test_probe_reads_the_device_and_tests_hardware(monkeypatch, output, image, expected):
-    monkeypatch.setattr(render, "_OPEN3D_STATUS", None)
-    monkeypatch.setattr(render, "_run_child", lambda arguments, timeout: output)
-    monkeypatch.setattr(render, "_run_open3d_child", lambda job, timeout: image)
+    monkeypatch.setattr(open3d_backend, "_OPEN3D_STATUS", None)
+    monkeypatch.setattr(open3d_backend, "_run_child", lambda arguments, timeout: output)
+    monkeypatch.setattr(open3d_backend, "_run_open3d_child", lambda job, timeout: image)
     status = render.open3d_status()
     assert (status.works, status.software) == expected
     assert render.open3d_status() is status  # cached
 
 
 def test_probe_failure_means_matplotlib(monkeypatch, tmp_path, sphere):
-    monkeypatch.setattr(render, "_OPEN3D_STATUS", None)
+    monkeypatch.setattr(open3d_backend, "_OPEN3D_STATUS", None)
 
     def crashed(arguments, timeout):
-        raise render._Open3DFailed("the Open3D renderer exited with -6: Precondition")
+        raise open3d_backend._Open3DFailed("the Open3D renderer exited with -6: Precondition")
 
-    monkeypatch.setattr(render, "_run_child", crashed)
+    monkeypatch.setattr(open3d_backend, "_run_child", crashed)
     assert render.open3d_status() == render.Open3DStatus(False, False, "the Open3D renderer exited with -6: Precondition")
     assert _pixels(render.render_meshes([sphere], tmp_path / "x.png", size=SMALL)).std() > 10
     with pytest.raises(RuntimeError, match="-6"):
         render.render_meshes([sphere], tmp_path / "y.png", size=SMALL, backend="open3d")
+
+
+def test_open3d_child_is_a_module_run_with_python_m(tmp_path):
+    # From another folder, with the environment the backend gives its children: this voro3d is found.
+    env = open3d_backend._child_environment()
+    command = [sys.executable, "-m", "voro3d.render.open3d_child"]
+    result = subprocess.run(command, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "usage: python -m voro3d.render.open3d_child" in result.stderr
+    code = "import voro3d, sys; print(voro3d.__file__)"
+    where = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert Path(where.stdout.strip()) == Path(render.__file__).parents[1] / "__init__.py"
 
 
 def test_open3d_backend_when_it_works(tmp_path, bracket):
@@ -329,7 +344,7 @@ def test_open3d_backend_when_it_works(tmp_path, bracket):
 def test_show_without_display_points_to_render_meshes(sphere, monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    monkeypatch.setattr(render.sys, "platform", "linux")
+    monkeypatch.setattr(sys, "platform", "linux")
     with pytest.raises(RuntimeError, match="display.*render_meshes"):
         render.show([sphere])
     with pytest.raises(ValueError, match="meshes"):
