@@ -1,27 +1,28 @@
-"""Point clouds in, watertight meshes out: VoroMesh from a cloud vs the fit that had the mesh,
-vs Open3D's screened Poisson reconstruction; then robustness to noise and drop-out.
+"""Point clouds as they come -> watertight meshes: VoroMesh vs Open3D's Poisson pipeline.
 
-Every dev mesh (default ``../shared/data/dev``, else the bundled examples) is sampled into a
-cloud of ``--points`` area-uniform points, *without normals*: the methods get the points only.
-VoroMesh estimates normals itself (on its averaged support cloud, timed with it); Poisson gets
-normals estimated and oriented on all the points by the same code
-(:func:`voro3d.reconstruction.estimate_normals`), their time added to Poisson's.
+Each dev mesh (default ``../shared/data/dev``, else the bundled examples) is sampled into
+clouds *without normals* under the conditions of ``CONDITIONS``: sparse to dense clean clouds,
+Gaussian noise, a 20x density ramp, uniform outliers in the bounding box, a third of the surface
+missing. On each cloud:
 
-* Main table at ``--grid``: VoroMesh from the cloud (``voro3d.reconstruct``), VoroMesh fitted to
-  the mesh itself (``voro3d.fit``, same grid and seed), and Poisson at the octree depth (6-9)
-  whose vertex count is nearest VoroMesh's. CD x1e5, F1, NC against the mesh (NDC frame, 100k
-  points), watertight % (closed, manifold, oriented, no self-intersection), seconds.
-* Robustness table at ``--noise-grid``: clean cloud, Gaussian noise of 0.5% and 1% of the
-  bounding-box diagonal (per coordinate), and 50% of the points dropped at random; each without
-  and with ``denoise=True``.
-* Speed of the point-cloud parts at 10^5 points: normal estimation + orientation, point areas,
-  and the winding number at 10^5 query points.
+* VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
+  target surface, fit), timed with its split.
+* Poisson, as a user of Open3D would run it: statistical outlier removal (20 neighbours, 2
+  deviations), normals (30 neighbours), ``orient_normals_consistent_tangent_plane(30)``, screened
+  Poisson at depth 7 and 8, the one with the lower CD per shape (its own pipeline time).
 
-Writes ``benchmarks/results/pointcloud.{md,json,png}``. The two parts can run in two processes
-(``--part main``, ``--part noise --reverse --out OTHER``) and be joined with ``--merge``.
+CD x1e5, F1 at 0.003 and NC against the mesh (NDC frame, 100k points); VoroMesh meshes are also
+checked closed, manifold, oriented with no crossing triangles (``check_watertight``), and their
+connected pieces counted. The clean 20k condition carries colours (RGB from the position) into
+both methods and scores the colour error at the ground-truth samples. ``--scans`` reconstructs
+the real scans of ``../shared/data/scans`` with both methods (distance from the scan points,
+agreement with the scan's normals, a side-by-side PNG per scan).
 
-    python benchmarks/bench_pointcloud.py [--grid 64] [--noise-grid 32] [--points 100000] [--limit N]
-    python benchmarks/bench_pointcloud.py --merge A.json B.json [--out OUT]
+Writes ``benchmarks/results/pointcloud.{md,json}`` (``--out``), ``pointcloud.png`` and
+``pointcloud_scans.png``. Parts of the work can run in separate processes and be merged:
+
+    python benchmarks/bench_pointcloud.py --shapes A B --conditions all --out /tmp/a
+    python benchmarks/bench_pointcloud.py --merge /tmp/a.json /tmp/b.json
 """
 from __future__ import annotations
 
@@ -34,330 +35,377 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-DEV = ROOT.parent / "shared" / "data" / "dev"
+SHARED = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "benchmarks" / "results"
-CONDITIONS = (("clean", 0.0, 1.0), ("noise 0.5%", 0.005, 1.0), ("noise 1%", 0.01, 1.0), ("drop-out 50%", 0.0, 0.5))
-PICTURED = ("organic_bunny.off", "cad_fandisk.obj", "organic_armadillo.obj")
+# name: (kind, points, parameter)
+CONDITIONS = {
+    "clean 5k": ("clean", 5_000, 0.0),
+    "clean 20k": ("clean", 20_000, 0.0),
+    "clean 100k": ("clean", 100_000, 0.0),
+    "noise 0.25%": ("noise", 20_000, 0.0025),
+    "noise 0.5%": ("noise", 20_000, 0.005),
+    "noise 1%": ("noise", 20_000, 0.01),
+    "density ramp 20x": ("ramp", 100_000, 20.0),
+    "outliers 2%": ("outliers", 50_000, 0.02),
+    "third missing": ("hole", 50_000, 1 / 3),
+}
+COLOURED = "clean 20k"
+PICTURED = ("organic_bunny.off", "cad_fandisk.obj")
+PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing")
 
 
-def sample_cloud(mesh, n_points, *, noise=0.0, keep=1.0, seed=0):
-    """``n_points`` area-uniform surface points, Gaussian noise of ``noise`` times the bounding-box
-    diagonal per coordinate, then a random ``keep`` share of them."""
+def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
+    """The cloud of one condition: area-uniform samples, then noise (sigma = share of the bounding-box
+    diagonal, per coordinate), a density falling linearly along x to 1/ratio, uniform outliers in the
+    bounding box (share of the points), or the samples beyond a random plane removed (share)."""
     from voro3d.io import mesh_arrays
     from voro3d.sampling import sample_surface
 
+    kind, n, parameter = CONDITIONS[condition]
     vertices, triangles = mesh_arrays(mesh)
-    points, _ = sample_surface((vertices, triangles), n_points, seed=seed)
     rng = np.random.default_rng(seed + 1)
-    diagonal = np.linalg.norm(vertices.max(0) - vertices.min(0))
-    points = points + rng.normal(scale=noise * diagonal, size=points.shape)
-    if keep < 1.0:
-        points = points[rng.random(points.shape[0]) < keep]
+    if kind == "ramp":
+        points, _ = sample_surface((vertices, triangles), 4 * n, seed=seed)
+        along = (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
+        points = points[rng.random(len(points)) < 1.0 - along * (1.0 - 1.0 / parameter)][:n]
+    elif kind == "hole":
+        points, _ = sample_surface((vertices, triangles), int(n / (1 - parameter)) + 1, seed=seed)
+        direction = rng.normal(size=3)
+        height = points @ (direction / np.linalg.norm(direction))
+        points = points[height < np.quantile(height, 1 - parameter)][:n]
+    else:
+        points, _ = sample_surface((vertices, triangles), n, seed=seed)
+    if kind == "noise":
+        diagonal = np.linalg.norm(vertices.max(0) - vertices.min(0))
+        points = points + rng.normal(scale=parameter * diagonal, size=points.shape)
+    if kind == "outliers":
+        points = np.vstack([points, rng.uniform(vertices.min(0), vertices.max(0), (int(parameter * n), 3))])
     return points
 
 
-def _score(mesh, source):
-    from voro3d.metrics import evaluate
-    from voro3d.watertight import check_watertight
-
-    row = evaluate(mesh, source)
-    report = check_watertight(mesh, self_intersection=len(mesh.triangles) < 400_000)
-    row.update(watertight=bool(report.watertight), self_intersecting_pairs=int(report.self_intersecting_pairs))
-    return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in row.items()}
+def position_colours(points, low, high):
+    """RGB in [0, 1] from the position in the box ``low``-``high``: a smooth colouring to carry over."""
+    return np.clip((points - low) / (high - low), 0.0, 1.0)
 
 
-def _voromesh_cloud(points, grid, denoise=False):
-    from voro3d import reconstruct
-
-    start = time.perf_counter()
-    mesh = reconstruct(points, grid, denoise=denoise)
-    return mesh, time.perf_counter() - start
-
-
-def _poisson(points, normals, target_vertices, normals_seconds):
-    """Screened Poisson at the depth whose vertex count is nearest ``target_vertices``."""
+def poisson(points, colours=None):
+    """Open3D's pipeline; returns {depth: (mesh, seconds)}."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    cloud.normals = o3d.utility.Vector3dVector(normals)
-    tried = {}
-
-    def run(depth):
+    if colours is not None:
+        cloud.colors = o3d.utility.Vector3dVector(colours)
+    start = time.perf_counter()
+    cloud, _ = cloud.remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(30))
+    cloud.orient_normals_consistent_tangent_plane(30)
+    prepared = time.perf_counter() - start
+    meshes = {}
+    for depth in (7, 8):
         start = time.perf_counter()
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth)
-        tried[depth] = (mesh, time.perf_counter() - start)
-        return abs(len(mesh.vertices) - target_vertices)
-
-    depth = 7
-    gap = run(depth)
-    step = 1 if len(tried[depth][0].vertices) < target_vertices else -1
-    while 6 <= depth + step <= 9:
-        next_gap = run(depth + step)
-        if next_gap >= gap:
-            break
-        depth, gap = depth + step, next_gap
-    mesh, seconds = tried[depth]
-    return mesh, normals_seconds + seconds, depth
+        meshes[depth] = (mesh, prepared + time.perf_counter() - start)
+    return meshes
 
 
-def main_row(path, grid, n_points, picture_dir, fitted=None):
-    from voro3d import fit
-    from voro3d.io import load_mesh, save_mesh
-    from voro3d.reconstruction import estimate_normals
+def _pieces(mesh) -> int:
+    return int(len(np.unique(np.asarray(mesh.cluster_connected_triangles()[0]))))
 
-    source = load_mesh(path)
-    row = dict(shape=path.name, grid=grid)
-    points = sample_cloud(source, n_points)
+
+def _colour_error(mesh, source, low, high):
+    """Mean |RGB error| (0-1 per channel, averaged) at 20k ground-truth samples: the colour of the
+    nearest mesh vertex against the position colouring."""
+    from scipy.spatial import cKDTree
+
+    from voro3d.sampling import sample_surface
+
+    truth, _ = sample_surface(source, 20_000, seed=5)
+    _, nearest = cKDTree(np.asarray(mesh.vertices)).query(truth, workers=-1)
+    return float(np.abs(np.asarray(mesh.vertex_colors)[nearest] - position_colours(truth, low, high)).mean())
+
+
+def run_condition(source, name, condition, grid, picture_dir):
+    import open3d as o3d
+
+    from voro3d.io import mesh_arrays, save_mesh
+    from voro3d.metrics import evaluate
+    from voro3d.pointcloud import reconstruct_points, transfer_colors
+    from voro3d.watertight import check_watertight
+
+    points = make_cloud(source, condition)
+    vertices, _ = mesh_arrays(source)
+    low, high = vertices.min(0), vertices.max(0)
+    colours = position_colours(points, low, high) if condition == COLOURED else None
+    row = dict(shape=name, condition=condition, points=len(points))
     start = time.perf_counter()
     try:
-        normals = estimate_normals(points)
-    except ValueError as error:
-        return dict(row, status="failed", error=f"normals: {error}")
-    normals_seconds = time.perf_counter() - start
-    row["normals_seconds"] = normals_seconds
-    meshes = {}
-    try:
-        meshes["cloud"], seconds = _voromesh_cloud(points, grid)
-        row["cloud"] = dict(_score(meshes["cloud"], source), seconds=seconds)
+        shape, info = reconstruct_points(points, grid=grid, progress=False)
+        mesh = shape.to_open3d()
+        if colours is not None:
+            mesh.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(mesh.vertices), points, colours))
+        seconds = time.perf_counter() - start
+        report = check_watertight(mesh)
+        row["voromesh"] = dict(evaluate(mesh, source), seconds=seconds, split=info.seconds, grid=info.grid,
+                               noise=info.noise, outliers=info.n_outliers, smoothed=info.smoothed,
+                               watertight=bool(report.watertight),
+                               crossing_pairs=int(report.self_intersecting_pairs), pieces=_pieces(mesh))
+        if colours is not None:
+            row["voromesh"]["colour_error"] = _colour_error(mesh, source, low, high)
+        meshes = {"voromesh": mesh}
     except (ValueError, RuntimeError) as error:
-        row["cloud"] = dict(error=f"{type(error).__name__}: {error}", watertight=False)
-    if fitted and path.name in fitted:  # the same fit (same code, grid and seed) already scored
-        row["mesh"] = dict(fitted[path.name], reused=True)
-    else:
-        try:
-            start = time.perf_counter()
-            meshes["mesh"] = fit(source, grid, progress=False).to_open3d()
-            row["mesh"] = dict(_score(meshes["mesh"], source), seconds=time.perf_counter() - start)
-        except ValueError as error:  # an open input mesh has no inside: only the cloud methods run
-            row["mesh"] = dict(error=str(error))
-    target = len(meshes["cloud"].vertices) if "cloud" in meshes else 30_000
-    meshes["poisson"], seconds, depth = _poisson(points, normals, target, normals_seconds)
-    row["poisson"] = dict(_score(meshes["poisson"], source), seconds=seconds, depth=depth)
-    if path.name in PICTURED:
-        for name, mesh in meshes.items():
-            save_mesh(mesh, picture_dir / f"{path.stem}_{name}.ply")
-    return dict(row, status="ok")
+        row["voromesh"] = dict(error=f"{type(error).__name__}: {error}", watertight=False,
+                               seconds=time.perf_counter() - start)
+        meshes = {}
+    tried = {depth: (evaluate(mesh, source), mesh, seconds) for depth, (mesh, seconds) in poisson(points, colours).items()}
+    depth = min(tried, key=lambda d: tried[d][0]["chamfer_x1e5"])
+    scores, mesh, seconds = tried[depth]
+    row["poisson"] = dict(scores, seconds=seconds, depth=depth, pieces=_pieces(mesh),
+                          closed=bool(mesh.is_edge_manifold() and mesh.is_watertight()))
+    if colours is not None:
+        row["poisson"]["colour_error"] = _colour_error(mesh, source, low, high)
+    meshes["poisson"] = mesh
+    if name in PICTURED and (condition in PICTURED_CONDITIONS or condition == COLOURED):
+        for method, mesh in meshes.items():
+            save_mesh(mesh, picture_dir / f"{Path(name).stem}_{condition.replace(' ', '_')}_{method}.ply")
+    return row
 
 
-def noise_rows(path, grid, n_points, denoise_options=(False, True)):
-    from voro3d.io import load_mesh
+def run_scans(folder: Path, grid, picture_dir):
+    """Both methods on each real scan: mean distance from the scan points to the mesh (in the scan's
+    bounding-box diagonals) and mean |n_scan . n_mesh| where the scan has normals."""
+    import open3d as o3d
 
-    source = load_mesh(path)
+    from voro3d.io import save_mesh
+    from voro3d.pointcloud import reconstruct_points
+    from voro3d.watertight import check_watertight
+
     rows = []
-    for name, noise, keep in CONDITIONS:
-        points = sample_cloud(source, n_points, noise=noise, keep=keep)
-        for denoise in denoise_options:
-            row = dict(shape=path.name, grid=grid, condition=name, denoise=denoise)
-            try:
-                mesh, seconds = _voromesh_cloud(points, grid, denoise)
-                row.update(status="ok", seconds=seconds, **_score(mesh, source))
-            except (ValueError, RuntimeError) as error:
-                row.update(status="failed", error=f"{type(error).__name__}: {error}", watertight=False)
-            rows.append(row)
+    for path in sorted(p for p in folder.iterdir() if p.suffix in (".ply", ".xyz")):
+        fmt = {"point_set_3.xyz": "xyzn"}.get(path.name, "xyz" if path.suffix == ".xyz" else "auto")
+        cloud = o3d.io.read_point_cloud(str(path), format=fmt)
+        points = np.asarray(cloud.points)
+        normals = np.asarray(cloud.normals) if cloud.has_normals() else None
+        usable = None if normals is None else np.linalg.norm(normals, axis=1) > 1e-9
+        row = dict(scan=path.name, points=len(points), normals=normals is not None)
+        diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
+        start = time.perf_counter()
+        try:
+            from voro3d.reconstruction import _oriented
+
+            checked_points, checked_normals = _oriented(points, normals)
+            shape, info = reconstruct_points(checked_points, checked_normals, grid=grid)
+            mesh = shape.to_open3d()
+            report = check_watertight(mesh)
+            row["voromesh"] = dict(_scan_scores(mesh, points, normals, usable, diagonal),
+                                   seconds=time.perf_counter() - start, grid=info.grid, pieces=_pieces(mesh),
+                                   watertight=bool(report.watertight), outliers=info.n_outliers)
+            save_mesh(mesh, picture_dir / f"scan_{path.stem}_voromesh.ply")
+        except ValueError as error:
+            row["voromesh"] = dict(error=str(error))
+        tried = poisson(points)
+        scored = {d: _scan_scores(m, points, normals, usable, diagonal) for d, (m, _) in tried.items()}
+        depth = min(scored, key=lambda d: scored[d]["distance"])
+        row["poisson"] = dict(scored[depth], depth=depth, seconds=tried[depth][1], pieces=_pieces(tried[depth][0]))
+        save_mesh(tried[depth][0], picture_dir / f"scan_{path.stem}_poisson.ply")
+        rows.append(row)
+        print(json.dumps(row), flush=True)
     return rows
 
 
-def speed(path, n_points=100_000, n_queries=100_000):
-    """Seconds of the point-cloud steps at 10^5 points (median of 3)."""
-    from voro3d.io import fit_frame, load_mesh
-    from voro3d.reconstruction import estimate_normals
-    from voro3d.sampling import point_areas, point_winding_number
+def _scan_scores(mesh, points, normals, usable, diagonal):
+    import open3d as o3d
 
-    source = load_mesh(path)
-    points = fit_frame(source).apply(sample_cloud(source, n_points))
-    queries = np.random.default_rng(0).uniform(-1, 1, (n_queries, 3))
-
-    def median(call):
-        times = []
-        for _ in range(3):
-            start = time.perf_counter()
-            value = call()
-            times.append(time.perf_counter() - start)
-        return value, float(np.median(times))
-
-    normals, normals_s = median(lambda: estimate_normals(points))
-    areas, areas_s = median(lambda: point_areas(points))
-    _, winding_s = median(lambda: point_winding_number(points, normals, queries, areas=areas))
-    return dict(shape=path.name, points=n_points, queries=n_queries, normals_seconds=normals_s,
-                areas_seconds=areas_s, winding_seconds=winding_s)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    found = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+    distance = np.linalg.norm(found["points"].numpy() - points, axis=1)
+    scores = dict(distance=float(distance.mean() / diagonal))
+    if normals is not None:
+        agreement = np.abs(np.einsum("ij,ij->i", found["primitive_normals"].numpy(), normals))
+        scores["normal_agreement"] = float(agreement[usable].mean())
+    return scores
 
 
 def _mean(rows, method, key):
-    values = [r[method][key] for r in rows if key in r.get(method, {})]
+    values = [r[method][key] for r in rows if key in r[method]]
     return float(np.mean(values)) if values else float("nan")
 
 
-def write(out: Path, meta, main, noise, timing):
-    out.with_suffix(".json").write_text(json.dumps(dict(meta=meta, main=main, noise=noise, speed=timing), indent=2))
-    ok = [r for r in main if r["status"] == "ok"]
-    both = [r for r in ok if "chamfer_x1e5" in r["cloud"] and "chamfer_x1e5" in r["mesh"]]
-    lines = [f"# Point clouds -> watertight meshes ({meta['date']}, {meta['machine']}, load average "
-             f"{meta['load_before']} before, {meta['load_after']} after)", "",
-             f"Clouds of {meta['points']} area-uniform points sampled from each dev mesh, without normals: VoroMesh "
-             "estimates its own (time included); Poisson gets normals estimated and oriented on all points by "
-             "`voro3d.reconstruction.estimate_normals` (time included). CD x1e5, F1 at 0.003, "
-             "NC against the mesh in its NDC frame (100k points each); watertight = closed, manifold, oriented, "
-             "positive volume, no self-intersection. Poisson: untrimmed, octree depth 6-9 chosen per shape for the "
-             "vertex count nearest VoroMesh-cloud's.", "",
-             f"## VoroMesh from the cloud vs from the mesh vs Poisson, {meta['grid']}^3", "",
-             "| method | shapes | CD x1e5 | F1 | NC | watertight % | mean s | mean vertices |", "|---|---|---|---|---|---|---|---|"]
-    for method, label in (("cloud", "VoroMesh, cloud"), ("mesh", "VoroMesh, mesh (fit)"), ("poisson", "Poisson")):
-        rows = both if method == "mesh" else ok
-        attempted = [r for r in rows if method in r and (method != "mesh" or "error" not in r["mesh"])]
-        watertight = 100.0 * np.mean([r[method].get("watertight", False) for r in attempted]) if attempted else float("nan")
-        lines.append(f"| {label} | {len(attempted)} | {_mean(rows, method, 'chamfer_x1e5'):.3f} | "
-                     f"{_mean(rows, method, 'f1'):.3f} | {_mean(rows, method, 'nc'):.3f} | {watertight:.0f} | "
-                     f"{_mean(rows, method, 'seconds'):.2f} | {_mean(rows, method, 'n_vertices'):.0f} |")
-    if both:
-        ratio = _mean(both, "cloud", "chamfer_x1e5") / _mean(both, "mesh", "chamfer_x1e5")
-        lines += ["", f"On the {len(both)} shapes with a closed mesh: mean CD cloud / mean CD mesh = **{ratio:.2f}x** "
-                      f"(VoroMesh-cloud {_mean(both, 'cloud', 'chamfer_x1e5'):.3f}, mesh fit "
-                      f"{_mean(both, 'mesh', 'chamfer_x1e5'):.3f}); Poisson on the same shapes "
-                      f"{_mean(both, 'poisson', 'chamfer_x1e5'):.3f}."]
-    failed = [r for r in main if r["status"] != "ok"]
-    if failed:
-        lines += ["", "Failed: " + "; ".join(f"{r['shape']}: {r['error']}" for r in failed)]
-    lines += ["", "## Robustness (VoroMesh from the cloud, normals estimated), "
-                  f"{meta['noise_grid']}^3", "",
-              "Noise: Gaussian per coordinate, sigma = share of the bounding-box diagonal. Drop-out: each point kept "
-              "with probability 1/2. *denoise*: `reconstruct(..., denoise=True)`, points projected onto local planes "
-              "about one grid step wide. Means over the shapes that produced a mesh; watertight % over all shapes.", "",
-              "| condition | denoise | shapes | meshes | CD x1e5 | median CD | F1 | NC | watertight % | mean s |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
-    for name, _, _ in CONDITIONS:
-        for denoise in (False, True):
-            rows = [r for r in noise if r["condition"] == name and r["denoise"] == denoise]
-            good = [r for r in rows if r["status"] == "ok"]
-            mean = {k: float(np.mean([r[k] for r in good])) if good else float("nan")
-                    for k in ("chamfer_x1e5", "f1", "nc", "seconds")}
-            median = float(np.median([r["chamfer_x1e5"] for r in good])) if good else float("nan")
-            watertight = 100.0 * np.mean([r["watertight"] for r in rows]) if rows else float("nan")
-            lines.append(f"| {name} | {'yes' if denoise else 'no'} | {len(rows)} | {len(good)} | "
-                         f"{mean['chamfer_x1e5']:.3f} | {median:.3f} | {mean['f1']:.3f} | {mean['nc']:.3f} | "
-                         f"{watertight:.0f} | {mean['seconds']:.2f} |")
-    if timing:
-        lines += ["", f"## Point-cloud steps at 10^5 points ({timing['shape']}, median of 3)", "",
-                  "| step | seconds |", "|---|---|",
-                  f"| normal estimation (Open3D PCA, k=16) + orientation (MST, scipy) | {timing['normals_seconds']:.2f} |",
-                  f"| point areas (k-th neighbour discs) | {timing['areas_seconds']:.3f} |",
-                  f"| generalized winding number, {timing['queries']} queries (libigl, Barnes-Hut) | "
-                  f"{timing['winding_seconds']:.3f} |"]
-    lines += ["", "## Per shape", "", "| shape | cloud CD | mesh CD | Poisson CD (depth) | cloud F1 | Poisson F1 | "
-                  "cloud s | Poisson s | watertight cloud/Poisson |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in main:
-        if r["status"] != "ok":
-            lines.append(f"| {r['shape']} | failed: {r['error']} | | | | | | | |")
+def write(out: Path, meta, rows, scans):
+    out.with_suffix(".json").write_text(json.dumps(dict(meta=meta, rows=rows, scans=scans), indent=2))
+    lines = [f"# Point clouds as they come -> watertight meshes ({meta['date']}, {meta['machine']}, load average "
+             f"{meta['load_before']} before, {meta.get('load_after', '?')} after)", "",
+             f"Clouds without normals sampled from {len({r['shape'] for r in rows})} dev meshes. VoroMesh: "
+             f"`voro3d.pointcloud.reconstruct_points(points, grid={meta['grid']})`. Poisson: Open3D statistical "
+             "outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation (30), screened Poisson "
+             "depth 7 or 8, the lower CD per shape. CD x1e5, F1 at 0.003, NC against the mesh (NDC frame, 100k "
+             "points). *closed*: VoroMesh meshes checked closed, manifold, oriented, no crossing triangles (exact); "
+             "*one piece*: share of the outputs in one connected piece (every input is one object).", "",
+             "| condition | shapes | VoroMesh CD | Poisson CD | CD ratio | VoroMesh NC | Poisson NC | NC diff | "
+             "VoroMesh F1 | Poisson F1 | closed % | one piece % (Poisson) | VoroMesh s | Poisson s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    totals = dict(voromesh=0.0, poisson=0.0)
+    for condition in CONDITIONS:
+        group = [r for r in rows if r["condition"] == condition]
+        if not group:
             continue
-        c, m, p = r["cloud"], r["mesh"], r["poisson"]
-        fmt = lambda d, k, f: format(d[k], f) if k in d else "-"  # noqa: E731
-        lines.append(f"| {r['shape']} | {fmt(c, 'chamfer_x1e5', '.3f')} | {fmt(m, 'chamfer_x1e5', '.3f')} | "
-                     f"{p['chamfer_x1e5']:.3f} ({p['depth']}) | {fmt(c, 'f1', '.3f')} | {p['f1']:.3f} | "
-                     f"{fmt(c, 'seconds', '.1f')} | {p['seconds']:.1f} | {c.get('watertight')}/{p['watertight']} |")
+        ok = [r for r in group if "chamfer_x1e5" in r["voromesh"]]
+        cd_v, cd_p = _mean(ok, "voromesh", "chamfer_x1e5"), _mean(ok, "poisson", "chamfer_x1e5")
+        nc_v, nc_p = _mean(ok, "voromesh", "nc"), _mean(ok, "poisson", "nc")
+        closed = 100.0 * np.mean([r["voromesh"].get("watertight", False) for r in group])
+        one = 100.0 * np.mean([r["voromesh"].get("pieces") == 1 for r in group])
+        one_p = 100.0 * np.mean([r["poisson"]["pieces"] == 1 for r in group])
+        seconds = {m: float(np.sum([r[m]["seconds"] for r in group])) for m in totals}
+        for m in totals:
+            totals[m] += seconds[m]
+        lines.append(f"| {condition} | {len(group)} ({len(ok)} meshes) | {cd_v:.3f} | {cd_p:.3f} | {cd_v / cd_p:.2f} | "
+                     f"{nc_v:.3f} | {nc_p:.3f} | {nc_v - nc_p:+.3f} | {_mean(ok, 'voromesh', 'f1'):.3f} | "
+                     f"{_mean(ok, 'poisson', 'f1'):.3f} | {closed:.0f} | {one:.0f} ({one_p:.0f}) | "
+                     f"{seconds['voromesh'] / len(group):.1f} | {seconds['poisson'] / len(group):.1f} |")
+    if rows:
+        splits = [r["voromesh"]["split"] for r in rows if "split" in r["voromesh"]]
+        split = {k: float(np.sum([s[k] for s in splits])) for k in splits[0]} if splits else {}
+        lines += ["", f"Time summed over all runs: VoroMesh {totals['voromesh']:.0f} s, Poisson pipeline "
+                      f"{totals['poisson']:.0f} s, ratio **{totals['voromesh'] / totals['poisson']:.2f}**. VoroMesh "
+                      "split: " + ", ".join(f"{k} {v:.0f} s ({100 * v / max(sum(split.values()), 1e-9):.0f}%)"
+                                            for k, v in split.items()) + "."]
+        coloured = [r for r in rows if "colour_error" in r["voromesh"]]
+        if coloured:
+            lines += ["", f"Colours ({COLOURED}, RGB from position, {len(coloured)} shapes): mean |RGB error| at the "
+                          f"ground-truth samples, VoroMesh {_mean(coloured, 'voromesh', 'colour_error'):.4f}, "
+                          f"Poisson {_mean(coloured, 'poisson', 'colour_error'):.4f}."]
+        failed = [r for r in rows if "error" in r["voromesh"]]
+        if failed:
+            lines += ["", "Failed: " + "; ".join(f"{r['shape']} / {r['condition']}: {r['voromesh']['error']}" for r in failed)]
+    if scans:
+        lines += ["", "## Real scans (`../shared/data/scans`)", "",
+                  "Mean distance from the scan points to the mesh, in scan bounding-box diagonals; mean |n_scan . "
+                  "n_mesh| at the scan points that have normals. Poisson: depth 7 or 8, the lower distance.", "",
+                  "| scan | points | VoroMesh distance | Poisson distance | VoroMesh normals | Poisson normals | "
+                  "VoroMesh pieces | Poisson pieces | VoroMesh closed | VoroMesh s | Poisson s |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for s in scans:
+            v, p = s["voromesh"], s["poisson"]
+            if "error" in v:
+                lines.append(f"| {s['scan']} | {s['points']} | error: {v['error']} | {p['distance']:.5f} | | | | | | | |")
+                continue
+            fmt = lambda d: f"{d['normal_agreement']:.3f}" if "normal_agreement" in d else "-"  # noqa: E731
+            lines.append(f"| {s['scan']} | {s['points']} | {v['distance']:.5f} | {p['distance']:.5f} | {fmt(v)} | "
+                         f"{fmt(p)} | {v['pieces']} | {p['pieces']} | {v['watertight']} | {v['seconds']:.1f} | "
+                         f"{p['seconds']:.1f} |")
+    lines += ["", "## Per shape and condition", "",
+              "| shape | condition | VoroMesh CD / NC / F1 | Poisson CD / NC / F1 (depth) | pieces | grid | noise est. | "
+              "outliers removed | s (VoroMesh / Poisson) |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        v, p = r["voromesh"], r["poisson"]
+        if "error" in v:
+            lines.append(f"| {r['shape']} | {r['condition']} | {v['error']} | | | | | | |")
+            continue
+        lines.append(f"| {r['shape']} | {r['condition']} | {v['chamfer_x1e5']:.3f} / {v['nc']:.3f} / {v['f1']:.3f} | "
+                     f"{p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / {p['f1']:.3f} ({p['depth']}) | {v['pieces']} | "
+                     f"{v['grid']} | {v['noise']:.2g} | {v['outliers']} | {v['seconds']:.1f} / {p['seconds']:.1f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
-def picture(picture_dir: Path, main, folder: Path, out_png: Path):
-    """Input, VoroMesh from the cloud, Poisson: one row per pictured shape."""
+def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
+    """Rows of input / VoroMesh / Poisson for the pictured shapes and conditions; one row per scan."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
     from figures import render_rows
 
     from voro3d.io import load_mesh
 
-    rows = [r for r in main if r["shape"] in PICTURED and r["status"] == "ok"
-            and (picture_dir / f"{Path(r['shape']).stem}_cloud.ply").exists()]
     figure = []
     for r in rows:
-        stem = Path(r["shape"]).stem
-        meshes = [load_mesh(folder / r["shape"]), load_mesh(picture_dir / f"{stem}_cloud.ply", weld=False),
-                  load_mesh(picture_dir / f"{stem}_poisson.ply", weld=False)]
-        titles = [f"{stem} (input)", f"VoroMesh from cloud {r['grid']}^3: CD {r['cloud']['chamfer_x1e5']:.2f}",
-                  f"Poisson depth {r['poisson']['depth']}: CD {r['poisson']['chamfer_x1e5']:.2f}"]
-        figure.append((meshes, titles))
-    render_rows(figure, out_png)
+        stem, tag = Path(r["shape"]).stem, r["condition"].replace(" ", "_")
+        files = [picture_dir / f"{stem}_{tag}_{m}.ply" for m in ("voromesh", "poisson")]
+        if r["condition"] not in PICTURED_CONDITIONS or not all(f.exists() for f in files):
+            continue
+        v, p = r["voromesh"], r["poisson"]
+        figure.append(([load_mesh(folder / r["shape"])] + [load_mesh(f, weld=False) for f in files],
+                       [f"{stem}: {r['condition']} ({r['points']} pts)",
+                        f"VoroMesh {v['grid']}^3: CD {v['chamfer_x1e5']:.2f} NC {v['nc']:.3f}",
+                        f"Poisson d{p['depth']}: CD {p['chamfer_x1e5']:.2f} NC {p['nc']:.3f}"]))
+    if figure:
+        render_rows(figure, out.with_suffix(".png"))
+    coloured = [(r, [picture_dir / f"{Path(r['shape']).stem}_{COLOURED.replace(' ', '_')}_{m}.ply"
+                     for m in ("voromesh", "poisson")]) for r in rows if r["condition"] == COLOURED]
+    coloured = [(r, files) for r, files in coloured if all(f.exists() for f in files)]
+    if coloured:
+        render_rows([([load_mesh(f, weld=False) for f in files],
+                      [f"VoroMesh, colours carried ({Path(r['shape']).stem})", "Poisson, colours carried"])
+                     for r, files in coloured], out.parent / (out.name + "_colours.png"))
+    scan_rows = []
+    for s in scans:
+        files = [picture_dir / f"scan_{Path(s['scan']).stem}_{m}.ply" for m in ("voromesh", "poisson")]
+        if all(f.exists() for f in files):
+            v, p = s["voromesh"], s["poisson"]
+            scan_rows.append(([load_mesh(f, weld=False) for f in files],
+                              [f"{s['scan']}: VoroMesh {v['grid']}^3, {v['pieces']} piece(s)",
+                               f"Poisson depth {p['depth']}, {p['pieces']} piece(s)"]))
+    if scan_rows:
+        render_rows(scan_rows, out.parent / (out.name + "_scans.png"))
 
 
 def merge(sources, out: Path, folder: Path):
-    """One table from the JSON results of runs over parts of the work; a later row replaces an
-    earlier one of the same shape (and condition)."""
     runs = [json.loads(Path(source).read_text()) for source in sources]
-    main_rows = {r["shape"]: r for run in runs for r in run["main"]}
-    noise = {(r["shape"], r["condition"], r["denoise"]): r for run in runs for r in run["noise"]}
-    meta = dict(runs[0]["meta"], load_after=runs[-1]["meta"].get("load_after", ""))
-    timing = next((run["speed"] for run in runs if run["speed"]), None)
-    main_rows = [main_rows[k] for k in sorted(main_rows)]
-    noise = [noise[k] for k in sorted(noise)]
-    write(out, meta, main_rows, noise, timing)
-    picture(ROOT / "out" / "bench_pointcloud", main_rows, folder, out.with_suffix(".png"))
+    rows = {(r["shape"], r["condition"]): r for run in runs for r in run["rows"]}
+    scans = {s["scan"]: s for run in runs for s in run["scans"]}
+    meta = dict(runs[0]["meta"], load_after=runs[-1]["meta"].get("load_after", "?"))
+    rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
+    scans = [scans[k] for k in sorted(scans)]
+    write(out, meta, rows, scans)
+    pictures(ROOT / "out" / "bench_pointcloud", rows, scans, folder, out)
     print(f"wrote {out.with_suffix('.md')}")
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--folder", type=Path, default=DEV if DEV.is_dir() else None)
-    parser.add_argument("--grid", type=int, default=64)
-    parser.add_argument("--noise-grid", type=int, default=32)
-    parser.add_argument("--points", type=int, default=100_000)
-    parser.add_argument("--limit", type=int, default=None, help="first N meshes only")
+    parser.add_argument("--folder", type=Path, default=SHARED / "dev" if (SHARED / "dev").is_dir() else None)
+    parser.add_argument("--shapes", nargs="*", help="file names in --folder (default: all)")
+    parser.add_argument("--conditions", nargs="*", default=list(CONDITIONS), choices=list(CONDITIONS))
+    parser.add_argument("--grid", default="64", help="VoroMesh grid, or auto")
+    parser.add_argument("--scans", action="store_true", help="also the real scans in ../shared/data/scans")
+    parser.add_argument("--no-shapes", action="store_true", help="scans only")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
-    parser.add_argument("--part", choices=("all", "main", "noise"), default="all")
-    parser.add_argument("--reverse", action="store_true", help="shapes in reverse order")
-    parser.add_argument("--denoise", choices=("both", "off", "on"), default="both",
-                        help="robustness rows without and/or with denoise=True")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running")
-    parser.add_argument("--mesh-fit-from", type=Path,
-                        help="bench_fit.py JSON whose VoroMesh rows (same grid) stand for the mesh fit instead of "
-                             "fitting again; the fit is deterministic, so only its seconds differ")
     args = parser.parse_args()
     import multiprocessing
 
     if args.merge:
         merge(args.merge, args.out, args.folder)
         return
+    from voro3d.io import MESH_SUFFIXES, load_mesh
 
-    from voro3d.io import MESH_SUFFIXES
-
-    if args.folder is None:
-        import tempfile
-
-        from voro3d.io import save_mesh
-        from voro3d.shapes import example_mesh, example_names
-
-        args.folder = Path(tempfile.mkdtemp())
-        for name in example_names():
-            save_mesh(example_mesh(name), args.folder / f"{name}.ply")
-    paths = sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)[: args.limit]
-    if args.reverse:
-        paths.reverse()
+    grid = args.grid if args.grid == "auto" else int(args.grid)
     picture_dir = ROOT / "out" / "bench_pointcloud"
     picture_dir.mkdir(parents=True, exist_ok=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     load = lambda: " ".join(Path("/proc/loadavg").read_text().split()[:3])  # noqa: E731
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=f"{platform.machine()}, {multiprocessing.cpu_count()} cores",
-                load_before=load(), points=args.points, grid=args.grid, noise_grid=args.noise_grid)
-    timing = speed(next((p for p in paths if p.name == "organic_bunny.off"), paths[0]))
-    print(json.dumps(timing), flush=True)
-    fitted = None
-    if args.mesh_fit_from:
-        fitted = {r["shape"]: r["voromesh"] for r in json.loads(args.mesh_fit_from.read_text())["rows"]
-                  if r["grid"] == args.grid and r["status"] == "ok"}
-    main_rows, noise = [], []
-    for path in paths if args.part in ("all", "main") else []:
-        row = main_row(path, args.grid, args.points, picture_dir, fitted)
-        main_rows.append(row)
-        print(json.dumps({k: row.get(k) for k in ("shape", "status", "error")} |
-                         {m: {k: row[m].get(k) for k in ("chamfer_x1e5", "f1", "watertight", "seconds", "error")}
-                          for m in ("cloud", "mesh", "poisson") if m in row}), flush=True)
+                load_before=load(), grid=args.grid)
+    paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
+    if args.shapes:
+        paths = [p for p in paths if p.name in args.shapes]
+    rows, scans = [], []
+    for path in paths:
+        source = load_mesh(path)
+        for condition in args.conditions:
+            row = run_condition(source, path.name, condition, grid, picture_dir)
+            rows.append(row)
+            print(json.dumps({k: row[k] for k in ("shape", "condition")} |
+                             {m: {k: row[m].get(k) for k in ("chamfer_x1e5", "nc", "f1", "pieces", "watertight",
+                                                             "seconds", "error")} for m in ("voromesh", "poisson")}),
+                  flush=True)
+            meta["load_after"] = load()
+            write(args.out, meta, rows, scans)
+    if args.scans:
+        scans = run_scans(SHARED / "scans", grid, picture_dir)
         meta["load_after"] = load()
-        write(args.out, meta, main_rows, noise, timing)
-    for path in paths if args.part in ("all", "noise") else []:
-        rows = noise_rows(path, args.noise_grid, args.points,
-                          {"both": (False, True), "off": (False,), "on": (True,)}[args.denoise])
-        noise += rows
-        print(json.dumps([{k: r.get(k) for k in ("shape", "condition", "denoise", "chamfer_x1e5", "watertight", "error")}
-                          for r in rows]), flush=True)
-        meta["load_after"] = load()
-        write(args.out, meta, main_rows, noise, timing)
-    picture(picture_dir, main_rows, args.folder, args.out.with_suffix(".png"))
+        write(args.out, meta, rows, scans)
+    pictures(picture_dir, rows, scans, args.folder, args.out)
     print(f"wrote {args.out.with_suffix('.md')}")
 
 

@@ -14,7 +14,8 @@ import open3d as o3d
 
 import voro3d
 import voro3d.shapes
-from voro3d.reconstruction import VoroMeshStage, estimate_normals
+from voro3d.pointcloud import estimate_normals
+from voro3d.reconstruction import VoroMeshStage
 
 
 def with_normals(cloud: o3d.geometry.PointCloud) -> o3d.geometry.PointCloud:

@@ -6,6 +6,8 @@ import pytest
 # The dev meshes: $VORO3D_DEV_DATA, else shared/data/dev beside the checkout. Tests take the path
 # from the dev_meshes fixture, which skips them when the folder is absent.
 DEV_DATA = Path(os.environ.get("VORO3D_DEV_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data" / "dev")
+# The real scans (CGAL's example point sets): beside the dev meshes.
+SCAN_DATA = DEV_DATA.parent / "scans"
 
 
 def pytest_addoption(parser):
@@ -28,3 +30,11 @@ def dev_meshes() -> Path:
     if not DEV_DATA.is_dir():
         pytest.skip(f"dev meshes not found at {DEV_DATA}")
     return DEV_DATA
+
+
+@pytest.fixture(scope="session")
+def scans() -> Path:
+    """The real-scan folder; skips the test when it is absent."""
+    if not SCAN_DATA.is_dir():
+        pytest.skip(f"scans not found at {SCAN_DATA}")
+    return SCAN_DATA

@@ -68,6 +68,15 @@ def _reconstruct(args) -> None:
     _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
 
 
+def _grid_or_auto(text: str):
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"grid must be an integer or 'auto', got {text!r}") from None
+
+
 def _load_sdf(path: Path):
     import numpy as np
 
@@ -166,12 +175,16 @@ def build_parser() -> argparse.ArgumentParser:
     rebuild = commands.add_parser("reconstruct", help="watertight mesh from a point cloud (or mesh) file")
     rebuild.add_argument("input", help="point cloud (.ply .pcd .xyz .xyzn .pts, .npy (n,3)/(n,6)) or mesh")
     _mesh_output_options(rebuild)
-    rebuild.add_argument("--grid", type=int, default=32)
+    rebuild.add_argument("--grid", type=_grid_or_auto, default="auto",
+                         help="grid resolution, or 'auto' (default: from the point spacing, 32-64; 32 for meshes)")
     rebuild.add_argument("--method", choices=("fit", "learned"), default="fit")
     rebuild.add_argument("--steps", type=int, default=400)
     rebuild.add_argument("--seed", type=int, default=0)
-    rebuild.add_argument("--denoise", action="store_true",
-                         help="project noisy points onto local planes about one grid step wide")
+    smoothing = rebuild.add_mutually_exclusive_group()
+    smoothing.add_argument("--denoise", dest="denoise", action="store_const", const=True, default=None,
+                           help="always smooth the points onto the IMLS surface (default: when noise is detected)")
+    smoothing.add_argument("--no-denoise", dest="denoise", action="store_const", const=False,
+                           help="never smooth the points")
     rebuild.set_defaults(run=_reconstruct)
 
     train = commands.add_parser("train", help="train the SDF -> generators network (needs torch)")

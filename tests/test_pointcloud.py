@@ -1,0 +1,203 @@
+"""voro3d.pointcloud: clouds as they come (sparse, noisy, outliers, holes, colours, real scans)."""
+import warnings
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from voro3d.metrics import evaluate
+from voro3d.pointcloud import (cloud_stats, imls, local_dimension, outlier_mask, reconstruct_points, repair_normals,
+                               transfer_colors)
+from voro3d.pointcloud.surface import winding_level
+from voro3d.reconstruction import reconstruct
+from voro3d.sampling import point_areas, sample_surface
+from voro3d.shapes import example_mesh
+from voro3d.watertight import check_watertight, signed_volume
+
+FAST = dict(grid=16, steps=60)
+
+
+@pytest.fixture(scope="module")
+def sphere_cloud():
+    points, normals = sample_surface(example_mesh("sphere"), 4000, seed=0)
+    return points, normals
+
+
+def _pieces(mesh) -> int:
+    return len(np.unique(np.asarray(mesh.cluster_connected_triangles()[0])))
+
+
+def test_imls_is_the_signed_distance_to_a_plane():
+    rng = np.random.default_rng(0)
+    points = np.c_[rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)]
+    normals = np.tile([0.0, 0.0, 1.0], (2000, 1))
+    queries = np.c_[rng.uniform(-0.5, 0.5, (50, 2)), rng.uniform(-0.1, 0.1, 50)]
+    value, gradient = imls(points, normals, np.full(2000, 0.05), queries)
+    assert np.allclose(value, queries[:, 2], atol=1e-9)
+    assert np.allclose(gradient, [0.0, 0.0, 1.0])
+
+
+def test_robust_imls_keeps_a_sharp_edge():
+    # Two faces of a wedge meeting at x = 0: the plain mean of their planes rounds the edge, the
+    # robust weights keep the field's zero near the corner.
+    rng = np.random.default_rng(1)
+    top = np.c_[rng.uniform(-1, 0, 3000), rng.uniform(-1, 1, 3000), np.zeros(3000)]
+    side = np.c_[np.zeros(3000), rng.uniform(-1, 1, 3000), rng.uniform(-1, 0, 3000)]
+    points = np.vstack([top, side])
+    normals = np.vstack([np.tile([0, 0, 1.0], (3000, 1)), np.tile([1.0, 0, 0], (3000, 1))])
+    corner = np.array([[0.0, 0.0, 0.0]])
+    value, _ = imls(points, normals, np.full(6000, 0.1), corner)
+    assert abs(value[0]) < 0.01
+
+
+def test_winding_level_is_half_for_closed_and_near_zero_for_one_sided(sphere_cloud):
+    points, normals = sphere_cloud
+    areas = point_areas(points)
+    assert abs(winding_level(points, normals, areas, 0.05) - 0.5) < 0.05
+    rng = np.random.default_rng(2)
+    sheet = np.c_[rng.uniform(-1, 1, (4000, 2)), np.zeros(4000)]
+    up = np.tile([0.0, 0.0, 1.0], (4000, 1))
+    assert winding_level(sheet, up, point_areas(sheet), 0.05) < 0.1
+
+
+def test_outliers_found_and_a_density_ramp_kept(sphere_cloud):
+    points, _ = sphere_cloud
+    rng = np.random.default_rng(3)
+    strays = rng.uniform(-1.5, 1.5, (80, 3))
+    strays = strays[np.abs(np.linalg.norm(strays, axis=1) - 1.0) > 0.3]  # away from the unit sphere
+    mask = outlier_mask(np.vstack([points, strays]))
+    assert mask[len(points):].mean() > 0.9 and mask[:len(points)].mean() < 0.01
+    ramp = points[rng.random(len(points)) < 1.0 - (points[:, 0] + 1.0) / 2 * 0.95]  # 20x denser at one end
+    assert outlier_mask(ramp).mean() < 0.02
+
+
+def test_a_far_clump_of_strays_is_removed(sphere_cloud):
+    points, _ = sphere_cloud
+    clump = np.random.default_rng(4).normal(scale=0.02, size=(20, 3)) + [3.0, 0.0, 0.0]
+    mask = outlier_mask(np.vstack([points, clump]))
+    assert mask[len(points):].all() and not mask[:len(points)].any()
+
+
+def test_noise_estimate_follows_the_noise(sphere_cloud):
+    points, _ = sphere_cloud
+    rng = np.random.default_rng(5)
+    clean = cloud_stats(points).noise
+    noisy = cloud_stats(points + rng.normal(scale=0.02, size=points.shape)).noise
+    assert clean < 0.008 and 0.01 < noisy < 0.04
+
+
+def test_local_dimension_tells_surfaces_from_volumes(sphere_cloud):
+    points, _ = sphere_cloud
+    assert local_dimension(points) < 2.3
+    assert local_dimension(np.random.default_rng(6).uniform(-1, 1, (4000, 3))) > 2.6
+
+
+def test_repair_normals_fills_a_few_and_refuses_many(sphere_cloud):
+    points, normals = sphere_cloud
+    broken = normals.copy()
+    broken[[3, 17]] = 0.0
+    broken[29] = np.nan
+    repaired = repair_normals(points, broken)
+    assert np.allclose(np.linalg.norm(repaired, axis=1), 1.0)
+    assert (np.einsum("ij,ij->i", repaired[[3, 17, 29]], normals[[3, 17, 29]]) > 0.9).all()
+    broken[:200] = 0.0
+    with pytest.raises(ValueError, match="200 of 4000 normals are zero, NaN or inf"):
+        repair_normals(points, broken)
+
+
+def test_transfer_colors_is_exact_at_the_points(sphere_cloud):
+    points, _ = sphere_cloud
+    colours = np.random.default_rng(7).random(points.shape)
+    assert np.allclose(transfer_colors(points[:10], points, colours), colours[:10])
+
+
+def test_sparse_cloud_gives_one_closed_smooth_piece():
+    mesh = example_mesh("torus")
+    points, _ = sample_surface(mesh, 1500, seed=1)
+    shape, info = reconstruct_points(points, grid=32, steps=150)
+    out = shape.to_open3d()
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    scores = evaluate(out, mesh, n_points=20000)
+    assert scores["nc"] > 0.96 and scores["chamfer_x1e5"] < 25  # measured 0.977, 16.6
+
+
+def test_outliers_leave_no_debris():
+    mesh = example_mesh("torus")
+    points, _ = sample_surface(mesh, 8000, seed=2)
+    rng = np.random.default_rng(8)
+    cloud = np.vstack([points, rng.uniform(points.min(0), points.max(0), (160, 3))])
+    shape, info = reconstruct_points(cloud, **FAST)
+    out = shape.to_open3d()
+    assert info.n_outliers > 60  # of 160; the rest lie inside the tube or on the surface
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    assert evaluate(out, mesh, n_points=20000)["chamfer_x1e5"] < 20
+
+
+def test_two_distant_objects_are_both_kept():
+    sphere = example_mesh("sphere")
+    points, _ = sample_surface(sphere, 3000, seed=3)
+    cloud = np.vstack([points, points + [6.0, 0.0, 0.0]])
+    out = reconstruct(cloud, grid=32, steps=100)
+    assert check_watertight(out).watertight and _pieces(out) == 2
+
+
+def test_a_missing_third_is_closed(sphere_cloud):
+    points, _ = sphere_cloud
+    kept = points[points[:, 2] < 0.4]  # a cap of the unit sphere missing
+    out = reconstruct(kept, **FAST)
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    volume = signed_volume(np.asarray(out.vertices), np.asarray(out.triangles))
+    assert 0.5 * (4 / 3 * np.pi) < volume < 1.1 * (4 / 3 * np.pi)
+
+
+def test_a_cloud_of_outliers_only_is_refused():
+    cloud = np.random.default_rng(9).uniform(-1, 1, (5000, 3))
+    with pytest.raises(ValueError, match="fill a volume"):
+        reconstruct(cloud, **FAST)
+
+
+def test_colours_are_carried_over(sphere_cloud):
+    points, normals = sphere_cloud
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    colours = (points + 1.0) / 2  # colour by position
+    cloud.colors = o3d.utility.Vector3dVector(colours)
+    out = reconstruct(cloud, **FAST)
+    assert out.has_vertex_colors()
+    vertices = np.asarray(out.vertices)
+    assert np.abs(np.asarray(out.vertex_colors) - np.clip((vertices + 1.0) / 2, 0, 1)).mean() < 0.05
+    assert not reconstruct(points, **FAST).has_vertex_colors()
+
+
+def test_grid_auto_and_a_grid_finer_than_the_points_warn_once(sphere_cloud):
+    points, _ = sphere_cloud
+    shape, info = reconstruct_points(points[:1000], grid="auto", steps=20)
+    assert 32 <= info.grid <= 64
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reconstruct_points(points[:300], grid=128, steps=5)
+    assert sum("finer than the points support" in str(w.message) for w in caught) == 1
+
+
+def test_same_seed_same_mesh(sphere_cloud):
+    points, _ = sphere_cloud
+    first, second = (np.asarray(reconstruct(points, **FAST).vertices) for _ in range(2))
+    assert np.array_equal(first, second)
+
+
+def test_real_scans_reconstruct_or_fail_clearly(scans):
+    for path, fmt in (("hippo2.ply", "auto"), ("point_set_3.xyz", "xyzn"), ("poste_france.xyz", "xyz"),
+                      ("radar.xyz", "xyz")):
+        cloud = o3d.io.read_point_cloud(str(scans / path), format=fmt)
+        try:
+            out = reconstruct(cloud, grid=32, steps=100)
+        except ValueError as error:
+            assert "\n" not in str(error)
+            continue
+        assert check_watertight(out).watertight, path
+        # The surface passes through the scan: the median point lies within a voxel of it.
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(out))
+        points = np.asarray(cloud.points).astype(np.float32)
+        distance = scene.compute_distance(o3d.core.Tensor(points)).numpy()
+        voxel = np.linalg.norm(np.ptp(points, axis=0)) / 31
+        assert np.median(distance) < voxel, path

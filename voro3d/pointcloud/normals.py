@@ -1,0 +1,192 @@
+"""Normals of a point cloud: local plane fits, oriented consistently and outward; repairs."""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["estimate_normals", "repair_normals"]
+
+# Neighbours for normal estimation and orientation.
+NEIGHBOURS = 16
+# Share of unusable (zero-length, NaN) given normals that is repaired from the neighbours;
+# beyond it the cloud's normals are refused.
+REPAIRABLE_SHARE = 0.01
+
+
+def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Unit normals with the few unusable ones (zero-length, NaN, inf) taken from their neighbours.
+
+    Scanners write a zero normal where they could not fit one; such a point gets the mean of
+    the usable normals of its ``NEIGHBOURS`` nearest points.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    normals : (n, 3) float
+
+    Returns
+    -------
+    (n, 3) float64
+        Unit length.
+
+    Raises
+    ------
+    ValueError
+        More than ``REPAIRABLE_SHARE`` of the normals are unusable, or a point has no usable
+        normal among its neighbours.
+    """
+    from scipy.spatial import cKDTree
+
+    normals = np.asarray(normals, np.float64)
+    length = np.linalg.norm(normals, axis=1)
+    bad = ~np.isfinite(length) | (length < 1e-12)
+    if bad.mean() > REPAIRABLE_SHARE:
+        raise ValueError(f"{int(bad.sum())} of {len(normals)} normals are zero, NaN or inf: the cloud's normals "
+                         "are not usable (drop them to have normals estimated)")
+    unit = np.where(bad[:, None], 0.0, normals / np.where(bad, 1.0, length)[:, None])
+    if bad.any():
+        good = np.flatnonzero(~bad)
+        _, neighbour = cKDTree(points[good]).query(points[bad], k=min(NEIGHBOURS, good.size), workers=-1)
+        mean = unit[good][neighbour.reshape(bad.sum(), -1)].sum(axis=1)
+        norm = np.linalg.norm(mean, axis=1)
+        if (norm < 1e-9).any():
+            raise ValueError("a zero-length normal has no usable normal among its neighbours")
+        unit[bad] = mean / norm[:, None]
+    return unit
+
+
+def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | None = None) -> np.ndarray:
+    """Unit normals from local PCA, oriented consistently and outward.
+
+    Open3D fits a plane to each point's ``k`` nearest neighbours. The signs are then made
+    consistent as in Hoppe et al. (1992): over the k-nearest-neighbour graph weighted by
+    ``1 - |n_i . n_j| + |d . n_i| + |d . n_j|`` (``d`` the unit edge direction), a minimum
+    spanning tree (scipy) carries each point's sign to its neighbours along the flattest
+    paths that stay on one side of thin walls. That is Open3D's
+    ``orient_normals_consistent_tangent_plane`` in spirit, but vectorised: about 2 s instead of
+    10 s to 9 minutes for 10^5 points here. Each connected piece of the graph is then flipped if
+    its normals point inward on balance, ``sum n . (p - c) < 0`` about the centroid ``c`` of
+    the cloud: for a closed surface that sum is three times the enclosed volume whatever ``c``.
+    Finally the tree is cut into smooth patches (where normals turn or an edge leaves the
+    tangent plane) and a patch flips when its points clearly see open space behind them and
+    enclosed space in front (:func:`_outside_votes`): a flat face that the tree reached
+    across a sharp edge with the wrong sign (the base of a bust) is caught there.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    k : int
+        Neighbours for the plane fits.
+    graph_k : int, optional
+        Neighbours joined in the orientation graph, at most ``k``; default ``k``. Fewer than the
+        plane fits keep the graph on one side of walls thinner than a plane fit's reach.
+
+    Returns
+    -------
+    (n, 3) float64
+
+    Raises
+    ------
+    ValueError
+        When the plane fits give no usable normals (degenerate neighbourhoods).
+    """
+    import open3d as o3d
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.spatial import cKDTree
+
+    n = points.shape[0]
+    k = min(k, n - 1)
+    graph_k = k if graph_k is None else min(graph_k, k)
+    distances, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
+    extent = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
+    stacked = int((distances[:, -1] <= 1e-9 * extent).sum())
+    if stacked > 0.01 * n:
+        raise ValueError(f"normals cannot be estimated: {stacked} of {n} points have all {k} neighbours at "
+                         "their own position (duplicated points), so no plane fits them")
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(k))
+    normals = np.asarray(cloud.normals).copy()
+    if not np.isfinite(normals).all() or (np.linalg.norm(normals, axis=1) < 0.5).mean() > 0.01:
+        raise ValueError("normals could not be estimated (degenerate neighbourhoods)")
+
+    rows = np.repeat(np.arange(n), graph_k)
+    cols = neighbours[:, 1:graph_k + 1].reshape(-1)
+    keep = cols < n  # duplicate points can leave a row short
+    rows, cols = rows[keep], cols[keep]
+    # Edges along the surface are cheap, so the tree never steps across a thin wall (whose two
+    # sides share one plane fit and would get the same sign): an edge pays for turning normals
+    # and for running along them. A zero weight would read as "no edge" to scipy: hence 1e-9.
+    direction = points[cols] - points[rows]
+    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
+    weights = (1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-9
+               + np.abs(np.einsum("ij,ij->i", direction, normals[rows]))
+               + np.abs(np.einsum("ij,ij->i", direction, normals[cols])))
+    tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(n, n)).tocsr())
+    pieces, piece = connected_components(tree, directed=False)
+    # One breadth-first pass over the whole forest: a virtual node n joined to one point per piece.
+    firsts = np.unique(piece, return_index=True)[1]
+    tree = tree.tocoo()
+    joined = coo_matrix((np.r_[tree.data, np.ones(pieces)], (np.r_[tree.row, np.full(pieces, n)],
+                                                              np.r_[tree.col, firsts])), shape=(n + 1, n + 1))
+    _, parent = breadth_first_order(joined.tocsr(), n, directed=False)
+    parent[n] = n
+    parent[firsts] = n
+    # sign[i] = flip[i] * sign[parent[i]], resolved by pointer jumping: log(depth) vectorised rounds.
+    sign = np.ones(n + 1)
+    sign[:n] = np.where(np.einsum("ij,ij->i", normals, normals[np.minimum(parent[:n], n - 1)]) < 0, -1.0, 1.0)
+    sign[firsts] = 1.0
+    ancestor = parent.copy()
+    while (ancestor != n).any():
+        sign, ancestor = sign * sign[ancestor], ancestor[ancestor]
+    normals *= sign[:n, None]
+    outward = np.bincount(piece, weights=np.einsum("ij,ij->i", normals, points - points.mean(axis=0)),
+                          minlength=pieces)
+    normals[outward[piece] < 0] *= -1.0
+    # A sharp edge or a wall thinner than the plane fits can still flip a whole face: cut the
+    # tree where normals turn or the edge leaves the tangent plane, and let each smooth patch
+    # vote on which side of it is open space.
+    step = points[tree.col] - points[tree.row]
+    step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
+    smooth = ((np.einsum("ij,ij->i", normals[tree.row], normals[tree.col]) > 0.95)
+              & (np.abs(np.einsum("ij,ij->i", step, normals[tree.row])) < 0.3)
+              & (np.abs(np.einsum("ij,ij->i", step, normals[tree.col])) < 0.3))
+    patches, patch = connected_components(coo_matrix((np.ones(int(smooth.sum())), (tree.row[smooth], tree.col[smooth])),
+                                                     shape=(n, n)), directed=False)
+    votes = np.bincount(patch, weights=_outside_votes(points, normals, float(np.median(distances[:, graph_k]))),
+                        minlength=patches)
+    # Only a clear verdict flips: near thin walls most probes cannot tell, and a few can mislead.
+    flip = votes < -0.25 * np.bincount(patch, minlength=patches)
+    normals[flip[patch]] *= -1.0
+    return normals
+
+
+def _outside_votes(points, normals, voxel):
+    """+1 where a point's normal points to open space and its back to enclosed space, -1 the other
+    way round, 0 when that cannot be told (both sides open: a thin wall, or a cloud with holes).
+
+    Open space is the empty voxels connected to the border of the grid, with the voxels holding
+    points grown by one so that the sampled surface has no gaps: ``voxel`` about the distance to
+    the 16th neighbour, so that a surface voxel holds about five points. Each point probes three
+    voxels along its normal, both ways.
+    """
+    from scipy import ndimage
+
+    low = points.min(axis=0)
+    extent = points.max(axis=0) - low
+    voxel = max(voxel, float(extent.max()) / 256)
+    if voxel <= 0:
+        return np.zeros(points.shape[0])
+    shape = np.ceil(extent / voxel).astype(int) + 9  # room for the probes beyond the cloud
+    occupied = np.zeros(shape, bool)
+    occupied[tuple(np.floor((points - low) / voxel).astype(int).T + 4)] = True
+    occupied = ndimage.binary_dilation(occupied, iterations=1)
+    labels, _ = ndimage.label(~occupied)
+    border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
+                                       labels[..., [0, -1]].ravel()]))
+    open_space = np.isin(labels, border[border > 0])
+
+    def is_open(queries):
+        cells = np.clip(np.floor((queries - low) / voxel).astype(int) + 4, 0, np.array(shape) - 1)
+        return open_space[tuple(cells.T)]
+
+    return is_open(points + 3 * voxel * normals).astype(float) - is_open(points - 3 * voxel * normals)

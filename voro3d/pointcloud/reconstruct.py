@@ -1,0 +1,322 @@
+"""Point cloud -> VoroMesh: clean, orient, build a smooth target surface, fit the generators to it.
+
+Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of a 64^3 grid
+empty, and noise pulls generators off the surface. So the VoroLoss fit never sees the raw
+points. It sees dense samples (as many as a mesh fit gets) of a target surface that the points
+define: a robust IMLS field near them and their winding number further away
+(:mod:`voro3d.pointcloud.surface`); the same field labels the cells.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .normals import estimate_normals
+from .preprocess import MAX_SURFACE_DIMENSION, cloud_stats, local_dimension, outlier_mask
+from .surface import imls, target_surface
+
+__all__ = ["PointCloudInfo", "reconstruct_points", "auto_grid", "max_supported_grid", "transfer_colors"]
+
+MIN_POINTS = 100
+# Kernel width of a point: this many local spacings, or this many noise standard deviations.
+WIDTH_PER_SPACING = 1.5
+WIDTH_PER_NOISE = 4.0
+# Estimated noise above this share of the spacing turns on the smoothing pass (denoise=None).
+NOISY = 0.1
+# grid="auto": voxels about this many median spacings wide, within these bounds.
+AUTO_SPACINGS_PER_VOXEL = 2.5
+AUTO_GRID_RANGE = (32, 64)
+# A voxel narrower than the median spacing has empty voxels all over the surface.
+MIN_SPACINGS_PER_VOXEL = 1.0
+# Clean points closer than this share of a voxel are dense: exact samples themselves, and their
+# winding number decides inside near the surface (:class:`~voro3d.pointcloud.surface.TargetSurface`).
+DENSE_SPACINGS = 1 / 3
+# ... and a cloud with this share of outliers or more is not trusted point by point.
+DENSE_MAX_OUTLIERS = 0.01
+# Inside cells in groups (joined within this many voxels) of fewer cells than this share of the
+# largest group's are strays: a cell whose label the samples nearby could not settle.
+STRAY_CELL_REACH = 1.5
+STRAY_CELL_SHARE = 0.02
+# Share of the points that must lie on the target surface (within two kernel widths).
+MIN_COVERAGE = 0.9
+# The target field is sampled this many times finer than the VoroMesh grid (at most MAX).
+FIELD_REFINEMENT = 2
+MAX_FIELD_RESOLUTION = 160
+
+
+@dataclass(frozen=True)
+class PointCloudInfo:
+    """What :func:`reconstruct_points` found and where the time went.
+
+    Attributes
+    ----------
+    n_points, n_outliers : int
+        Points given, and points removed as outliers.
+    spacing, noise : float
+        Median point spacing and estimated noise (standard deviation), in the input's units.
+    smoothed : bool
+        Whether the noise-smoothing pass ran.
+    grid : int
+        VoroMesh grid used.
+    seconds : dict
+        ``clean`` (outliers, statistics), ``normals``, ``surface`` (field and proxy mesh),
+        ``samples`` (sampling and projection), ``fit`` (VoroLoss fit and cell labels).
+    """
+
+    n_points: int
+    n_outliers: int
+    spacing: float
+    noise: float
+    smoothed: bool
+    grid: int
+    seconds: dict
+
+
+def max_supported_grid(spacing: float) -> int:
+    """Finest grid whose voxels (fit frame, diagonal 2) are still ``MIN_SPACINGS_PER_VOXEL``
+    median spacings wide; ``spacing`` in fit-frame units."""
+    return int(2.0 / (MIN_SPACINGS_PER_VOXEL * spacing)) + 1
+
+
+def auto_grid(spacing: float) -> int:
+    """Grid for a cloud of median spacing ``spacing`` (fit frame): voxels about
+    ``AUTO_SPACINGS_PER_VOXEL`` spacings wide, clipped to ``AUTO_GRID_RANGE``."""
+    return int(np.clip(round(2.0 / (AUTO_SPACINGS_PER_VOXEL * spacing)) + 1, *AUTO_GRID_RANGE))
+
+
+def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit", steps: int = 400, seed: int = 0,
+                       device: str = "cpu", denoise=None, progress: bool = False):
+    """VoroMesh of a point cloud, through a smooth target surface.
+
+    1. Outliers out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
+       measured; a cloud that fills a volume instead of sampling a surface is refused.
+    2. Normals: the given ones, else estimated and oriented (:func:`estimate_normals`).
+    3. On a noisy cloud, one IMLS pass moves the points onto the smooth surface and replaces
+       their normals with the field's (its kernel spans several noise deviations).
+    4. The target: IMLS field near the points, winding number away from them, on a grid twice
+       as fine as the VoroMesh grid; pieces and cavities the points do not support are removed.
+    5. The VoroLoss samples: ``150 grid^2`` of them from its Marching Cubes mesh, whose
+       vertices are projected onto the IMLS surface, or the points themselves where they are
+       much denser than the grid (:func:`_fit_samples`); the field labels the cells.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    normals : (n, 3) float64 or None
+        Unit outward normals, or None to estimate them.
+    grid : int or "auto"
+        VoroMesh grid; ``"auto"`` picks it from the spacing (:func:`auto_grid`). A grid finer
+        than :func:`max_supported_grid` works but warns.
+    method : {"fit", "learned"}
+        VoroLoss fit, or the ONNX network on the target's signed distance grid.
+    steps, seed, device, progress
+        As in :func:`voro3d.fit`.
+    denoise : bool or None
+        The smoothing pass of step 3: None decides from the estimated noise (on above
+        ``NOISY`` spacings), True or False force it.
+
+    Returns
+    -------
+    voromesh : voro3d.VoroMesh
+        In the input's units.
+    info : PointCloudInfo
+
+    Raises
+    ------
+    ValueError
+        Too few points left after outlier removal, a cloud that fills a volume, or normals
+        that cannot be estimated.
+    """
+    from scipy.spatial import cKDTree
+
+    from ..io import fit_frame
+
+    seconds = {}
+    start = time.perf_counter()
+    n_points = points.shape[0]
+    outliers = outlier_mask(fit_frame(points).apply(points))
+    if n_points - outliers.sum() < MIN_POINTS:
+        raise ValueError(f"{int(outliers.sum())} of {n_points} points look like outliers; fewer than {MIN_POINTS} "
+                         "surface points are left")
+    points = points[~outliers]
+    normals = None if normals is None else normals[~outliers]
+    frame = fit_frame(points)  # without the outliers, which may have stretched the box
+    framed = frame.apply(points)
+    tree = cKDTree(framed)
+    dimension = local_dimension(framed, tree=tree)
+    if dimension > MAX_SURFACE_DIMENSION:
+        raise ValueError(f"the points fill a volume instead of sampling a surface (local dimension {dimension:.2f}; "
+                         "a sampled surface reads about 2): no surface to reconstruct")
+    stats = cloud_stats(framed, tree=tree)
+    if not stats.median_spacing > 1e-9:
+        raise ValueError("most points are duplicated (their neighbours sit at the same position): no surface can be "
+                         "fitted to them")
+    grid = _choose_grid(grid, stats.median_spacing)
+    seconds["clean"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    if normals is None:
+        normals = estimate_normals(framed)
+    seconds["normals"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    widths = np.maximum(WIDTH_PER_SPACING * stats.spacing, WIDTH_PER_NOISE * stats.noise)
+    smoothed = bool(stats.noise > NOISY * stats.median_spacing) if denoise is None else bool(denoise)
+    if smoothed:
+        value, gradient = imls(framed, normals, widths, framed, tree=tree)
+        framed = framed - value[:, None] * gradient
+        normals = gradient
+    target = target_surface(framed, normals, widths, min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION))
+    target.dense = bool(stats.median_spacing < DENSE_SPACINGS * 2.0 / (grid - 1) and not smoothed
+                        and outliers.mean() < DENSE_MAX_OUTLIERS)
+    _check_coverage(target, framed, widths)
+    seconds["surface"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    if method == "learned":
+        shape = _predict(target, grid, frame)
+        seconds["samples"], seconds["fit"] = 0.0, time.perf_counter() - start
+    else:
+        from ..fitting import SAMPLES_PER_FACE, fit_samples
+        from ..sampling import sample_surface
+
+        samples = _fit_samples(target, framed, stats.spacing, grid, seed=seed)
+        seconds["samples"] = time.perf_counter() - start
+        start = time.perf_counter()
+        shape, _ = fit_samples(samples, target.inside, grid, frame=frame, steps=steps, seed=seed, device=device,
+                               progress=progress)
+        shape = _drop_stray_cells(shape, frame, grid)
+        seconds["fit"] = time.perf_counter() - start
+    info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
+                          spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
+                          smoothed=smoothed, grid=grid, seconds=seconds)
+    return shape, info
+
+
+def _fit_samples(target, points, spacing, grid: int, *, seed: int) -> np.ndarray:
+    """The VoroLoss samples: ``150 grid^2`` of them, as a mesh fit gets.
+
+    Dense clean points (``target.dense``: spacing under a third of a voxel) are exact samples
+    already, and the proxy mesh is only as good as its grid (a wall thinner than a grid step is
+    lost there): they are used, and proxy samples only fill the holes, where no point is within
+    two spacings. Sparser points leave voxels empty: then the samples all come from the proxy
+    mesh, whose vertices are first moved onto the IMLS surface (its samples then lie within the
+    chord error of a mesh twice finer than the grid).
+    """
+    from scipy.spatial import cKDTree
+
+    from ..fitting import SAMPLES_PER_FACE
+    from ..sampling import sample_surface
+
+    budget = SAMPLES_PER_FACE * grid**2
+    proxy, _ = sample_surface((target.project(target.vertices), target.triangles), budget, seed=seed)
+    if not target.dense:
+        return proxy
+    if points.shape[0] > budget:
+        points = points[np.random.default_rng(seed).choice(points.shape[0], budget, replace=False)]
+    distance, _ = cKDTree(points).query(proxy, workers=-1)
+    # Projected, so that strays that survived the outlier tests land on the surface.
+    return np.vstack([target.project(points), proxy[distance > 2.0 * np.median(spacing)]])
+
+
+def _drop_stray_cells(shape, frame, grid: int):
+    """The VoroMesh with small groups of inside cells, apart from the rest, turned outside.
+
+    Inside generators within ``STRAY_CELL_REACH`` voxels of each other form groups; a group of
+    fewer than ``STRAY_CELL_SHARE`` of the largest group's cells (and at most 8) is a speck of
+    debris. Flipping whole cells keeps the surface closed: it is extracted again from the labels.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    from ..extract import VoroMesh
+
+    inside = np.flatnonzero(shape.occupancy)
+    if inside.size < 2:
+        return shape
+    pairs = cKDTree(frame.apply(shape.generators[inside])).query_pairs(STRAY_CELL_REACH * 2.0 / (grid - 1),
+                                                                        output_type="ndarray")
+    groups, group = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                                                    shape=(inside.size, inside.size)), directed=False)
+    size = np.bincount(group, minlength=groups)
+    stray = (size < STRAY_CELL_SHARE * size.max()) & (size <= 8)
+    if not stray.any():
+        return shape
+    occupancy = shape.occupancy.copy()
+    occupancy[inside[stray[group]]] = False
+    return VoroMesh(shape.generators, occupancy)
+
+
+def _check_coverage(target, points, widths) -> None:
+    """Refuse a target surface that misses the points: one that no volume behind them explains
+    (a one-sided scan of a thin or open structure) shrinks to blobs far from most points."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(target.vertices.astype(np.float32)),
+                        o3d.core.Tensor(target.triangles.astype(np.uint32)))
+    distance = scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+    covered = float(np.mean(distance <= 2.0 * widths + 2.0 / (target.resolution - 1)))
+    if covered < MIN_COVERAGE:
+        raise ValueError(f"no closed surface explains these points: only {100 * covered:.0f}% of them lie on the "
+                         "reconstructed surface (an open, one-sided scan of a thin or flat object?)")
+
+
+def _choose_grid(grid, spacing: float) -> int:
+    from .._validate import positive_int
+
+    if isinstance(grid, str):
+        if grid != "auto":
+            raise ValueError(f"grid must be an int >= 4 or 'auto', got {grid!r}")
+        return auto_grid(spacing)
+    grid = positive_int(grid, "grid", minimum=4)
+    supported = max_supported_grid(spacing)
+    if grid > supported:
+        warnings.warn(f"grid {grid} is finer than the points support (voxels narrower than their spacing; up to "
+                      f"{supported} is supported): the surface between points comes from the smooth target alone",
+                      stacklevel=4)
+    return grid
+
+
+def _predict(target, grid: int, frame):
+    """The learned model on the target's signed distance at the ``grid^3`` nodes."""
+    import open3d as o3d
+
+    from ..extract import VoroMesh
+    from ..infer import predict
+    from ..sampling import grid_nodes
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(target.vertices.astype(np.float32)),
+                        o3d.core.Tensor(target.triangles.astype(np.uint32)))
+    nodes = grid_nodes(grid)
+    distance = scene.compute_distance(o3d.core.Tensor(nodes.astype(np.float32))).numpy()
+    sdf = np.where(target.inside(nodes), -distance, distance).reshape(grid, grid, grid).astype(np.float32)
+    shape = predict(sdf)
+    return VoroMesh(frame.invert(shape.generators), shape.occupancy)
+
+
+def transfer_colors(vertices: np.ndarray, points: np.ndarray, colors: np.ndarray, *, k: int = 8) -> np.ndarray:
+    """Colours at mesh vertices from a coloured cloud: inverse-distance mean of the ``k`` nearest points.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float64
+    points : (n, 3) float64
+    colors : (n, 3) float64
+        RGB in [0, 1].
+
+    Returns
+    -------
+    (v, 3) float64
+    """
+    from scipy.spatial import cKDTree
+
+    distance, neighbour = cKDTree(points).query(vertices, k=min(k, points.shape[0]), workers=-1)
+    distance, neighbour = distance.reshape(len(vertices), -1), neighbour.reshape(len(vertices), -1)
+    weight = 1.0 / np.maximum(distance, 1e-12 * max(float(np.ptp(points)), 1e-300))
+    return np.clip(np.einsum("vk,vkc->vc", weight, colors[neighbour]) / weight.sum(axis=1, keepdims=True), 0.0, 1.0)
