@@ -50,7 +50,8 @@ def _shape(name):
 
 def _prepare(name, grid, variant, path, queue):
     from voro3d.generators import initial_generators
-    from voro3d.sampling import InsideOutside, sample_surface
+    from voro3d.queries import InsideOutside
+    from voro3d.sampling import sample_surface
 
     mesh = _shape(name)
     samples, _ = sample_surface(mesh, 150 * grid * grid, seed=0)

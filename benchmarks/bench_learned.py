@@ -1,7 +1,7 @@
 """Learned VoroMesh (the shipped ONNX model) against Marching Cubes from the same SDF grid.
 
 For every dev mesh (never trained on) whose inside is defined, in its fit frame, at 32^3 and
-64^3: the SDF grid (:func:`voro3d.sampling.sdf_grid`, cached in ``benchmarks/cache/``), then
+64^3: the SDF grid (:func:`voro3d.queries.sdf_grid`, cached in ``benchmarks/cache/``), then
 
 * learned VoroMesh with fallbacks (the default), timed as network (SDF checks, node selection,
   onnxruntime, fallbacks) and extraction (``VoroMesh.to_open3d``);
@@ -34,7 +34,7 @@ GROUPS = ("thingi32", "abc", "cad", "organic")
 def _sdf(path: Path, grid: int):
     """Fit-frame mesh and cached SDF grid of one dev mesh (None when its inside is undefined)."""
     from voro3d.io import fit_frame, load_mesh, mesh_arrays
-    from voro3d.sampling import sdf_grid
+    from voro3d.queries import sdf_grid
 
     vertices, triangles = mesh_arrays(load_mesh(path))
     vertices = fit_frame((vertices, triangles)).apply(vertices)

@@ -7,7 +7,8 @@ import pytest
 from voro3d.baselines import dual_contouring, marching_cubes
 from voro3d.io import fit_frame, load_mesh
 from voro3d.metrics import evaluate
-from voro3d.sampling import grid_nodes, open_edge_count, sdf_grid
+from voro3d.queries import open_edge_count, sdf_grid
+from voro3d.sampling import grid_nodes
 from voro3d.watertight import check_watertight, signed_volume
 
 

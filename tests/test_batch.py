@@ -135,11 +135,11 @@ def test_cpu_slots(monkeypatch):
 _PINNED_WORKER = """
 import os, sys
 os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-from voro3d import sampling
+from voro3d import queries
 from voro3d.batch.worker import _prepare
-before = sampling.WINDING_THREADS
+before = queries.WINDING_THREADS
 _prepare("learned", sys.argv[1], 2)
-print(before, sampling.WINDING_THREADS)
+print(before, queries.WINDING_THREADS)
 """
 
 

@@ -7,7 +7,8 @@ from voro3d import fitting as fit_module
 from voro3d.extract import VoroMesh, extract_mesh
 from voro3d.fitting import FitInfo, fit, fit_with_info
 from voro3d.io import load_mesh, mesh_arrays
-from voro3d.sampling import InsideOutside, sample_surface
+from voro3d.queries import InsideOutside
+from voro3d.sampling import sample_surface
 from voro3d.watertight import check_watertight
 
 # Enough steps to converge well at grids up to 32, few enough to keep this file fast.

@@ -10,7 +10,8 @@ from voro3d.extract import VoroMesh
 from voro3d.infer import DEFAULT_MODEL, NEAR, Predictor, check_sdf, network_input, predict, predict_mesh
 from voro3d.io import fit_frame, mesh_arrays
 from voro3d.metrics import evaluate
-from voro3d.sampling import grid_nodes, sdf_grid
+from voro3d.queries import sdf_grid
+from voro3d.sampling import grid_nodes
 from voro3d.shapes import example_mesh
 from voro3d.watertight import check_watertight
 

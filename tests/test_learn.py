@@ -10,7 +10,8 @@ from voro3d.learn.data import ShapeSet, build_dataset, cad_shape, organic_shape 
 from voro3d.learn.export import TOLERANCE, check_grids, export_onnx  # noqa: E402
 from voro3d.learn.model import VoroNet, load_checkpoint  # noqa: E402
 from voro3d.learn.train import augment, load_config, shape_loss, train_main  # noqa: E402
-from voro3d.sampling import InsideOutside, grid_nodes  # noqa: E402
+from voro3d.queries import InsideOutside  # noqa: E402
+from voro3d.sampling import grid_nodes  # noqa: E402
 
 GRID = 16
 

@@ -7,7 +7,7 @@ import pytest
 from voro3d.baselines import marching_cubes
 from voro3d.io import fit_frame, load_mesh, mesh_arrays
 from voro3d.metrics import evaluate
-from voro3d.sampling import sdf_grid
+from voro3d.queries import sdf_grid
 
 
 KEYS = {"chamfer", "chamfer_x1e5", "chamfer_l1", "precision", "recall", "f1", "nc", "n_vertices", "n_triangles"}

@@ -74,7 +74,7 @@ def test_cli_fit_eval_render(tmp_path, capsys):
 
 def test_cli_predict_from_mesh_and_sdf(tmp_path, capsys):
     from voro3d.io import fit_frame
-    from voro3d.sampling import sdf_grid
+    from voro3d.queries import sdf_grid
     from voro3d.shapes import example_mesh
 
     source = example_mesh("bracket")

@@ -10,7 +10,8 @@ from voro3d.pointcloud import (cloud_stats, imls, local_dimension, outlier_mask,
                                transfer_colors)
 from voro3d.pointcloud.surface import winding_level
 from voro3d.reconstruction import reconstruct
-from voro3d.sampling import point_areas, sample_surface
+from voro3d.queries import point_areas
+from voro3d.sampling import sample_surface
 from voro3d.shapes import example_mesh
 from voro3d.watertight import check_watertight, signed_volume
 

@@ -7,7 +7,8 @@ import pytest
 from voro3d.metrics import evaluate
 from voro3d.pointcloud import estimate_normals
 from voro3d.reconstruction import VoroMeshStage, reconstruct
-from voro3d.sampling import point_winding_number, sample_surface
+from voro3d.queries import point_winding_number
+from voro3d.sampling import sample_surface
 from voro3d.shapes import example_mesh
 from voro3d.watertight import check_watertight
 

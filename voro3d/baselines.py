@@ -1,7 +1,7 @@
 """Marching Cubes and Dual Contouring from an SDF grid: the paper's classical baselines.
 
 Both read a ``(g, g, g)`` grid whose node ``[i, j, k]`` sits at ``-1 + 2 (i, j, k) / (g - 1)`` (the
-layout of :func:`voro3d.sampling.sdf_grid`) and return vertices in those ``[-1, 1]^3`` coordinates.
+layout of :func:`voro3d.queries.sdf_grid`) and return vertices in those ``[-1, 1]^3`` coordinates.
 A surface that reaches the outermost nodes comes out open there; keep the shape inside the grid.
 """
 from __future__ import annotations
@@ -102,7 +102,7 @@ def dual_contouring(sdf, mesh) -> tuple[np.ndarray, np.ndarray]:
     ValueError
         ``sdf`` is not a finite cubic grid or has no sign change; ``mesh`` is invalid.
     """
-    from .sampling import InsideOutside
+    from .queries import InsideOutside
 
     sdf = as_sdf_grid(sdf, "sdf", min_size=2)
     mesh = mesh_arrays(mesh)

@@ -21,7 +21,7 @@ def run(out: Path, *, shape: str = "bracket", grid: int = 32, quiet: bool = Fals
     from .io import fit_frame, save_mesh, to_triangle_mesh
     from .metrics import evaluate
     from .render import render_meshes
-    from .sampling import sdf_grid
+    from .queries import sdf_grid
     from .shapes import example_mesh
     from .watertight import check_watertight
 

@@ -18,7 +18,8 @@ from .generators import initial_generators
 from .io import fit_frame, mesh_arrays
 from .loss import DEFAULT_K, PAIR_BLOCK, bisector_distance, bisector_pairs, nearest_indices
 from .occupancy import label_cells
-from .sampling import InsideOutside, sample_surface
+from .queries import InsideOutside
+from .sampling import sample_surface
 
 # Surface samples per grid face, n_samples = SAMPLES_PER_FACE * grid**2 (official code).
 SAMPLES_PER_FACE = 150
@@ -128,7 +129,7 @@ def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
         ``"cpu"`` or ``"cuda"`` (or ``"cuda:N"``) for the optimisation loop.
     allow_open : bool
         Accept a mesh with boundary edges; inside is then decided by winding number
-        (see :class:`voro3d.sampling.InsideOutside`).
+        (see :class:`voro3d.queries.InsideOutside`).
     progress : bool
         Show a tqdm progress bar over the steps.
 
@@ -185,7 +186,7 @@ def fit_samples(samples, inside, grid: int = 32, *, frame=None, steps: int = 400
         Surface samples in the fit frame (inside ``[-1, 1]^3``).
     inside : callable
         Maps (q, 3) float64 fit-frame points to (q,) bool, True inside the shape (a mesh's
-        :class:`voro3d.sampling.InsideOutside`, a point cloud's winding number, ...).
+        :class:`voro3d.queries.InsideOutside`, a point cloud's winding number, ...).
     grid, steps, lr, milestones, gamma, batch_fraction, k, seed, device, progress
         As in :func:`fit_with_info`.
     frame : voro3d.io.NormalizationFrame, optional

@@ -261,7 +261,7 @@ class Predictor:
         """Learned VoroMesh of a closed triangle mesh, in the mesh's own units.
 
         The mesh is put in its fit frame (:func:`voro3d.io.fit_frame`), its SDF is sampled on a
-        ``grid^3`` lattice (:func:`voro3d.sampling.sdf_grid`), and the predicted generators are
+        ``grid^3`` lattice (:func:`voro3d.queries.sdf_grid`), and the predicted generators are
         mapped back.
 
         Parameters
@@ -280,7 +280,7 @@ class Predictor:
         """
         from ._validate import positive_int
         from .io import fit_frame, mesh_arrays
-        from .sampling import sdf_grid
+        from .queries import sdf_grid
 
         grid = positive_int(grid, "grid", minimum=4)
         vertices, triangles = mesh_arrays(mesh)

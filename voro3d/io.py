@@ -394,7 +394,7 @@ def ndc_frame(geometry) -> NormalizationFrame:
 def fit_frame(geometry) -> NormalizationFrame:
     """Frame of the official VoroMesh fitting code: :func:`ndc_frame` scaled by 2 (diagonal 2).
 
-    SDF grids (:func:`voro3d.sampling.sdf_grid`) span ``[-1, 1]^3`` in this frame; the shape lies
+    SDF grids (:func:`voro3d.queries.sdf_grid`) span ``[-1, 1]^3`` in this frame; the shape lies
     inside since each half-extent is at most half the diagonal.
     """
     ndc = ndc_frame(geometry)

@@ -106,14 +106,14 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
     import numpy as np
     import open3d as o3d
 
-    from .. import sampling
+    from .. import queries
     from ..extract import VoroMesh
     from ..metrics import evaluate
     from ..watertight import check_watertight
 
-    # Winding numbers run on up to sampling.WINDING_THREADS threads, a number set at import from
+    # Winding numbers run on up to queries.WINDING_THREADS threads, a number set at import from
     # the whole machine; a worker has ``threads`` CPUs (its affinity, when pinned).
-    sampling.WINDING_THREADS = max(1, min(sampling.WINDING_THREADS, threads, available_cpus()))
+    queries.WINDING_THREADS = max(1, min(queries.WINDING_THREADS, threads, available_cpus()))
     box = o3d.geometry.TriangleMesh.create_box()
     _reconstruct(box, method, grid=8, steps=2, seed=0, model=model, threads=threads)
     corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))

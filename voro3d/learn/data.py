@@ -10,7 +10,7 @@ needs as one ``.npz`` per shape:
 ``vertices (v, 3) float64``, ``triangles (t, 3) int32``
     The watertight mesh in the fit frame: stage 2 labels predicted cells with its inside test.
 ``sdf_<g> (g, g, g) float32``
-    :func:`voro3d.sampling.sdf_grid` for every requested grid size ``g``, negative inside.
+    :func:`voro3d.queries.sdf_grid` for every requested grid size ``g``, negative inside.
 ``samples (m, 3) float32``
     Area-uniform surface samples, the targets of VoroLoss.
 """
@@ -25,7 +25,8 @@ import numpy as np
 
 from .._validate import positive_int
 from ..io import MESH_SUFFIXES, atomic_path, fit_frame, load_mesh, mesh_arrays
-from ..sampling import InsideOutside, sample_surface, sdf_grid
+from ..queries import InsideOutside, sdf_grid
+from ..sampling import sample_surface
 
 log = logging.getLogger(__name__)
 

@@ -151,7 +151,7 @@ def cell_labels(mesh_queries, net_input: NetworkInput, generators: np.ndarray, s
 
     Parameters
     ----------
-    mesh_queries : voro3d.sampling.InsideOutside
+    mesh_queries : voro3d.queries.InsideOutside
         Inside test of the ground-truth mesh (fit frame).
     net_input : NetworkInput
     generators : (n, 3) float64
@@ -178,7 +178,7 @@ class _Validation:
     def __init__(self, shapes: ShapeSet, grids, n_detail: int, cd_points: int):
         from ..baselines import marching_cubes
         from ..metrics import evaluate
-        from ..sampling import InsideOutside
+        from ..queries import InsideOutside
 
         self.shapes = [shapes[i] for i in range(len(shapes))]
         self.grids = list(grids)
@@ -297,7 +297,7 @@ def _stage1_epoch(model, optimizer, scheduler, shapes: ShapeSet, config: dict, e
 def _occupancy_table(model: VoroNet, shapes: ShapeSet, indices, grids, *, near: float, band: float,
                      nodes_per_shape: int, seed: int, progress) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Frozen features, offsets and true cell labels of up to ``nodes_per_shape`` nodes per shape and grid."""
-    from ..sampling import InsideOutside
+    from ..queries import InsideOutside
 
     rng = np.random.default_rng([seed, 2])
     features, offsets, labels = [], [], []

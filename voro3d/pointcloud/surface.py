@@ -91,7 +91,7 @@ class TargetSurface:
         node = tuple(np.clip(np.rint(index), 0, self.resolution - 1).astype(np.int64).T)
         close = (np.abs(value) < step) & ~self.removed[node]
         if close.any() and self.dense:
-            from ..sampling import point_winding_number
+            from ..queries import point_winding_number
 
             winding = point_winding_number(self.points, self.normals, queries[close], areas=self.areas)
             value[close] = self.level - winding
@@ -186,7 +186,8 @@ def target_surface(points, normals, widths, resolution: int, *, min_support: int
     from scipy import ndimage
     from scipy.spatial import cKDTree
 
-    from ..sampling import grid_nodes, point_areas, point_winding_number
+    from ..queries import point_areas, point_winding_number
+    from ..sampling import grid_nodes
 
     step = 2.0 / (resolution - 1)
     nodes = grid_nodes(resolution)
@@ -235,7 +236,7 @@ def winding_level(points, normals, areas, offset: float, *, n_probes: int = 2000
     solid is what lies behind the scanned side. So the level is the midpoint of the median
     winding numbers ``offset`` behind and in front of (up to ``n_probes``) points.
     """
-    from ..sampling import point_winding_number
+    from ..queries import point_winding_number
 
     probes = np.random.default_rng(0).permutation(points.shape[0])[:n_probes]
     behind = point_winding_number(points, normals, points[probes] - offset * normals[probes], areas=areas)

@@ -122,7 +122,7 @@ def render_error_map(mesh, reference, path, *, vmax=None, cmap="viridis", title=
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
-    from ..sampling import InsideOutside
+    from ..queries import InsideOutside
 
     vertices, triangles = mesh_arrays(mesh, "mesh")
     ref_vertices, ref_triangles = mesh_arrays(reference, "reference")

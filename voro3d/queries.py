@@ -1,0 +1,341 @@
+"""Inside/outside, distance and closest-point queries; generalized winding numbers of meshes and
+point clouds; signed-distance grids."""
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ._validate import as_points, positive_int
+from .io import mesh_arrays
+from .sampling import grid_nodes
+
+__all__ = ["InsideOutside", "winding_number", "open_edge_count", "sdf_grid", "point_areas", "point_winding_number",
+           "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "WINDING_THREADS", "FAST_WINDING_MARGIN"]
+
+# Ray directions of the inside test: mutually orthogonal and far from the axes and diagonals, so
+# rays from grid-aligned queries do not run along the edges of grid-aligned (CAD, voxel-derived)
+# meshes. Open3D's own ``compute_occupancy(nsamples=k)`` casts k rays within 0.001 of (1, 1, 1),
+# which fail together: 32 wrong nodes in the 64^3 grids of the dev meshes, none with these rays
+# plus the winding-number tie-break.
+RAY_DIRECTIONS = np.array([
+    [0.62920277, 0.68800303, -0.36160159],
+    [-0.46501772, 0.7060269, 0.53412035],
+    [0.62277761, -0.16789397, 0.76417253],
+])
+
+# Query-triangle pairs per block in :func:`winding_number`; about ten float64 arrays of this many
+# entries are alive at once per thread, so 2**21 pairs and up to four threads peak near 0.7 GB.
+WINDING_PAIRS_PER_BLOCK = 2**21
+WINDING_THREADS = min(4, os.cpu_count() or 1)
+# Fast winding numbers this close to 0.5 are recomputed exactly before the inside test; their
+# error was below 0.0034 on every query tried (dev meshes: grid nodes and random points).
+FAST_WINDING_MARGIN = 0.05
+
+
+def _triangles_of(vertices: np.ndarray, triangles, name: str) -> np.ndarray:
+    triangles = np.asarray(triangles)
+    if not np.issubdtype(triangles.dtype, np.integer) or triangles.ndim != 2 or triangles.shape[1] != 3:
+        raise ValueError(f"{name} must be an integer array of shape (t, 3), got {triangles.dtype} {triangles.shape}")
+    if triangles.shape[0] == 0:
+        raise ValueError(f"{name} holds no triangles")
+    if triangles.min() < 0 or triangles.max() >= vertices.shape[0]:
+        raise ValueError(f"{name} index vertices outside [0, {vertices.shape[0]})")
+    return triangles.astype(np.int64, copy=False)
+
+
+def winding_number(mesh_vertices, mesh_triangles, queries, *, chunk: int | None = None) -> np.ndarray:
+    """Generalized winding number of a triangle soup at query points.
+
+    The sum over triangles of their signed solid angle seen from the query, divided by 4 pi
+    (Van Oosterom-Strackee formula). It is 1 inside and 0 outside a closed outward mesh, and
+    degrades gracefully on open or non-manifold meshes (Jacobson et al. 2013), which makes it the
+    inside test of last resort. Cost is ``O(n_queries * n_triangles)``: about 10^8 pairs a second.
+
+    Parameters
+    ----------
+    mesh_vertices : (v, 3) float
+    mesh_triangles : (t, 3) int
+        Oriented so that normals point outward (right-hand rule).
+    queries : (n, 3) float
+    chunk : int, optional
+        Queries per block. Default: as many as keep ``WINDING_PAIRS_PER_BLOCK`` query-triangle
+        pairs per block (about 0.35 GB of temporaries).
+
+    Returns
+    -------
+    (n,) float64
+        About 1 inside, 0 outside, -1 inside an inverted mesh; 0.5 on the surface. Queries within
+        about 1e-7 bounding-box diagonals of a vertex get noisy values.
+    """
+    vertices = as_points(mesh_vertices, "mesh_vertices")
+    triangles = _triangles_of(vertices, mesh_triangles, "mesh_triangles")
+    queries = as_points(queries, "queries", min_count=0)
+    if chunk is None:
+        chunk = max(1, WINDING_PAIRS_PER_BLOCK // triangles.shape[0])
+    chunk = positive_int(chunk, "chunk")
+    # Unit-size coordinates keep the expanded products below well conditioned.
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    center, scale = (low + high) / 2, 1.0 / max(float(np.linalg.norm(high - low)), np.finfo(float).tiny)
+    vertices = (vertices - center) * scale
+    queries = (queries - center) * scale
+
+    a, b, c = (vertices[triangles[:, i]] for i in range(3))
+    # Every per-pair term is a per-triangle constant minus query dot products, so a block needs one
+    # (b, 3) @ (3, v) product and column gathers instead of (b, t, 3) temporaries:
+    #   det(a-q, b-q, c-q) = det(a, b, c) - q . (a x b + b x c + c x a)
+    #   (a-q) . (b-q)      = a . b - q . a - q . b + |q|^2
+    det0 = np.einsum("ij,ij->i", a, np.cross(b, c))
+    normal_sum = (np.cross(a, b) + np.cross(b, c) + np.cross(c, a)).T.copy()
+    dot_ab, dot_bc, dot_ca = (np.einsum("ij,ij->i", x, y) for x, y in ((a, b), (b, c), (c, a)))
+    squared_norms = np.einsum("ij,ij->i", vertices, vertices)
+    corners = triangles.T.copy()
+
+    def block(start: int) -> None:
+        q = queries[start:start + chunk]
+        qq = np.einsum("ij,ij->i", q, q)[:, None]
+        projection = q @ vertices.T
+        lengths = squared_norms - 2.0 * projection + qq
+        np.sqrt(np.maximum(lengths, 0.0, out=lengths), out=lengths)
+        pa, pb, pc = (np.take(projection, corner, axis=1) for corner in corners)
+        la, lb, lc = (np.take(lengths, corner, axis=1) for corner in corners)
+        del projection, lengths
+        denominator = la * lb
+        denominator *= lc
+        denominator += (dot_ab - pa - pb + qq) * lc
+        denominator += (dot_bc - pb - pc + qq) * la
+        denominator += (dot_ca - pc - pa + qq) * lb
+        # Solid angle = 2 atan2(numerator, denominator); winding = sum of solid angles / (4 pi).
+        angles = np.arctan2(det0 - q @ normal_sum, denominator, out=denominator)
+        result[start:start + chunk] = angles.sum(axis=1) / (2.0 * np.pi)
+
+    result = np.empty(queries.shape[0])
+    starts = range(0, queries.shape[0], chunk)
+    # numpy releases the GIL inside large array operations, so threads share the cores.
+    with ThreadPoolExecutor(max_workers=WINDING_THREADS) as pool:
+        list(pool.map(block, starts))
+    return result
+
+
+def open_edge_count(vertices: np.ndarray, triangles: np.ndarray) -> int:
+    """Number of edges not shared by exactly two triangles, after welding coincident vertices.
+
+    The same test as ``trimesh.Trimesh.is_watertight``: zero means closed and edge-manifold.
+    """
+    _, weld = np.unique(vertices, axis=0, return_inverse=True)
+    welded = weld.reshape(-1)[triangles]
+    welded = welded[(welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])]
+    edges = np.sort(welded[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return int((counts != 2).sum())
+
+
+class InsideOutside:
+    """Inside/outside, distance and closest-point queries against one mesh, built once.
+
+    Wraps ``open3d.t.geometry.RaycastingScene``. For a closed mesh, a point is inside when rays
+    along the three ``RAY_DIRECTIONS`` cross the surface an odd number of times; the rare points
+    where the rays disagree are settled by the winding number. Open3D's ``compute_occupancy`` and
+    the sign of its ``compute_signed_distance`` are not used: their rays (any ``nsamples``) all
+    point within 0.001 of (1, 1, 1) and misclassify grid nodes of self-intersecting meshes.
+    Open meshes have no inside unless ``allow_open=True``, which switches to the generalized
+    winding number everywhere.
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
+    allow_open : bool, keyword-only
+        Accept a mesh with boundary or non-manifold edges and decide inside by winding number > 0.5.
+
+    Attributes
+    ----------
+    vertices : (v, 3) float64
+    triangles : (t, 3) int64
+    closed : bool
+        Every edge is shared by exactly two triangles (after welding coincident vertices).
+
+    Raises
+    ------
+    ValueError
+        ``mesh`` has no triangles or NaN/inf vertices; or it has open or non-manifold edges and
+        ``allow_open`` is False.
+
+    Notes
+    -----
+    Open3D computes in float32: distances carry a relative error near 1e-7 of the coordinates.
+    """
+
+    def __init__(self, mesh, *, allow_open: bool = False):
+        import open3d as o3d
+
+        self.vertices, self.triangles = mesh_arrays(mesh)
+        bad_edges = open_edge_count(self.vertices, self.triangles)
+        self.closed = bad_edges == 0
+        if not self.closed and not allow_open:
+            raise ValueError(
+                f"mesh has {bad_edges} edges not shared by exactly two triangles (open boundary or "
+                "non-manifold edges): inside/outside is undefined; pass allow_open=True to use the "
+                "generalized winding number")
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
+                                  o3d.core.Tensor(self.triangles.astype(np.uint32)))
+
+    @staticmethod
+    def _tensor(points):
+        import open3d as o3d
+
+        return o3d.core.Tensor(as_points(points, "points", min_count=0).astype(np.float32))
+
+    def occupancy(self, points) -> np.ndarray:
+        """``(n, 3)`` points -> ``(n,)`` bool, True inside.
+
+        Closed mesh: crossing parity along each of ``RAY_DIRECTIONS``; where the rays disagree
+        (one grazed an edge, or the mesh self-intersects) the winding number decides.
+        Open mesh (``allow_open=True``): winding number > 0.5 everywhere.
+        """
+        import open3d as o3d
+
+        points = as_points(points, "points", min_count=0)
+        if points.shape[0] == 0:
+            return np.zeros(0, dtype=bool)
+        if not self.closed:
+            return self._winding_inside(points)
+        n_rays = RAY_DIRECTIONS.shape[0]
+        rays = np.empty((points.shape[0], n_rays, 6), dtype=np.float32)
+        rays[:, :, :3] = points[:, None, :]
+        rays[:, :, 3:] = RAY_DIRECTIONS
+        crossings = self._scene.count_intersections(o3d.core.Tensor(rays)).numpy()
+        votes = (crossings % 2).sum(axis=1)
+        inside = votes * 2 > n_rays
+        split = np.flatnonzero((votes != 0) & (votes != n_rays))
+        if split.size:
+            # abs: parity ignores orientation, so an inside-out closed mesh must not flip here.
+            inside[split] = np.abs(self.winding_number(points[split])) > 0.5
+        return inside
+
+    def _winding_inside(self, points: np.ndarray) -> np.ndarray:
+        """Winding number > 0.5, from libigl's fast (Barnes-Hut) estimate, which errs by a few
+        thousandths, made exact (:func:`winding_number`) where it is near 0.5: hundreds of times
+        faster than the exact sum everywhere."""
+        import igl
+
+        estimate = igl.fast_winding_number(self.vertices, self.triangles.astype(np.int64), points)
+        unsure = np.abs(estimate - 0.5) < FAST_WINDING_MARGIN
+        estimate[unsure] = self.winding_number(points[unsure])
+        return estimate > 0.5
+
+    def winding_number(self, points) -> np.ndarray:
+        """``(n, 3)`` points -> ``(n,)`` float64 generalized winding number (see :func:`winding_number`)."""
+        points = as_points(points, "points", min_count=0)
+        if points.shape[0] == 0:
+            return np.zeros(0)
+        return winding_number(self.vertices, self.triangles, points)
+
+    def unsigned_distance(self, points) -> np.ndarray:
+        """``(n, 3)`` points -> ``(n,)`` float64 distance to the surface, in mesh units."""
+        points = as_points(points, "points", min_count=0)
+        if points.shape[0] == 0:
+            return np.zeros(0)
+        return self._scene.compute_distance(self._tensor(points)).numpy().astype(np.float64)
+
+    def signed_distance(self, points) -> np.ndarray:
+        """``(n, 3)`` points -> ``(n,)`` float64 distance to the surface, negative inside."""
+        distance = self.unsigned_distance(points)
+        return np.where(self.occupancy(points), -distance, distance)
+
+    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """Closest surface points and the unit normals of their triangles.
+
+        Returns
+        -------
+        closest : (n, 3) float64
+        normals : (n, 3) float64
+            Right-hand-rule normals of the closest triangles (outward for an outward mesh).
+        """
+        points = as_points(points, "points", min_count=0)
+        if points.shape[0] == 0:
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        found = self._scene.compute_closest_points(self._tensor(points))
+        return (found["points"].numpy().astype(np.float64),
+                found["primitive_normals"].numpy().astype(np.float64))
+
+
+def sdf_grid(mesh, grid: int, *, allow_open: bool = False) -> np.ndarray:
+    """Signed distance at the nodes of :func:`grid_nodes`.
+
+    The mesh must already be in the fit frame (:func:`voro3d.io.fit_frame`, bounding-box diagonal
+    2), so that the grid's ``[-1, 1]^3`` holds it; nothing is rescaled here.
+
+    Parameters
+    ----------
+    mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
+        Closed, unless ``allow_open``.
+    grid : int
+        Nodes per axis, ``>= 2``.
+    allow_open : bool, keyword-only
+        See :class:`InsideOutside`.
+
+    Returns
+    -------
+    (grid, grid, grid) float32
+        Signed distance in mesh units, negative inside; index ``[i, j, k]`` is node (x_i, y_j, z_k).
+    """
+    grid = positive_int(grid, "grid", minimum=2)
+    queries = InsideOutside(mesh, allow_open=allow_open)
+    return queries.signed_distance(grid_nodes(grid)).reshape(grid, grid, grid).astype(np.float32)
+
+
+def point_areas(points, *, k: int = 16) -> np.ndarray:
+    """Surface area each point of a cloud stands for, from its k-th neighbour distance.
+
+    A disc of radius r_k around a point holds about k points, so each stands for
+    ``pi r_k^2 / k``: the weights the point-cloud winding number needs.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    k : int
+
+    Returns
+    -------
+    (n,) float64, in squared units of ``points``.
+    """
+    from scipy.spatial import cKDTree
+
+    points = as_points(points, "points", min_count=2)
+    k = min(positive_int(k, "k", minimum=1), points.shape[0] - 1)
+    distance, _ = cKDTree(points).query(points, k=k + 1, workers=-1)
+    return np.pi * distance[:, -1] ** 2 / k
+
+
+def point_winding_number(points, normals, queries, *, areas=None) -> np.ndarray:
+    """Generalized winding number of an oriented point cloud (Barill et al. 2018).
+
+    libigl's Barnes-Hut evaluation (octree, second-order expansion): near 1 inside a closed
+    sampled surface, near 0 outside, robust to noise and holes.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    normals : (n, 3) float
+        Outward unit normals.
+    queries : (q, 3) float
+    areas : (n,) float, optional
+        Area per point; default :func:`point_areas`.
+
+    Returns
+    -------
+    (q,) float64
+    """
+    import igl
+
+    points = as_points(points, "points", min_count=2)
+    normals = as_points(normals, "normals")
+    if normals.shape != points.shape:
+        raise ValueError(f"normals must have shape {points.shape}, got {normals.shape}")
+    queries = as_points(queries, "queries", min_count=0)
+    if queries.shape[0] == 0:
+        return np.zeros(0)
+    areas = point_areas(points) if areas is None else np.ascontiguousarray(areas, np.float64)
+    return np.asarray(igl.fast_winding_number(points, normals, areas, queries), np.float64)
