@@ -46,7 +46,8 @@ def _one(path, grid, steps, picture_dir, queue):
     from voro3d.fitting import fit_with_info
     from voro3d.io import fit_frame, load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
     from voro3d.metrics import evaluate
-    from voro3d.queries import open_edge_count, sdf_grid
+    from voro3d.queries import sdf_grid
+    from voro3d.topology import open_edge_count
 
     torch.set_num_threads(1)
     try:

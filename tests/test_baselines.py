@@ -7,8 +7,9 @@ import pytest
 from voro3d.baselines import dual_contouring, marching_cubes
 from voro3d.io import fit_frame, load_mesh
 from voro3d.metrics import evaluate
-from voro3d.queries import open_edge_count, sdf_grid
+from voro3d.queries import sdf_grid
 from voro3d.sampling import grid_nodes
+from voro3d.topology import open_edge_count
 from voro3d.watertight import check_watertight, signed_volume
 
 

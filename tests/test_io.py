@@ -10,7 +10,7 @@ from hypothesis.extra.numpy import arrays
 
 from voro3d.io import (NormalizationFrame, fit_frame, load_mesh, load_points, mesh_arrays, ndc_frame,
                        save_mesh, to_triangle_mesh)
-from voro3d.queries import open_edge_count
+from voro3d.topology import open_edge_count
 
 
 

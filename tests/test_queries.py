@@ -4,8 +4,9 @@ import open3d as o3d
 import pytest
 
 from voro3d.io import fit_frame, load_mesh, mesh_arrays
-from voro3d.queries import InsideOutside, open_edge_count, sdf_grid, winding_number
+from voro3d.queries import InsideOutside, sdf_grid, winding_number
 from voro3d.sampling import grid_nodes
+from voro3d.topology import open_edge_count
 
 
 def sphere_arrays(radius=0.5, resolution=40):

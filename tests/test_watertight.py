@@ -3,7 +3,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from voro3d.topology import split_nonmanifold
+from voro3d.topology import edge_counts, open_edge_count, split_nonmanifold
 from voro3d.watertight import assert_closed_manifold, check_watertight, self_intersections, signed_volume
 
 # A unit tetrahedron with outward normals.
@@ -46,6 +46,24 @@ def test_non_manifold_edge_and_vertex():
     faces = np.vstack([TET_F, [[0, 4, 5], [0, 6, 4], [0, 5, 6], [4, 6, 5]]])
     report = check_watertight((vertices, faces))
     assert report.closed and report.edge_manifold and not report.vertex_manifold
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_open_edges_are_counted_once_for_both_checks(seed):
+    # Random fans over few vertices: edges in 1, 2 and 3+ triangles, duplicated positions.
+    rng = np.random.default_rng(seed)
+    triangles = np.array([t for t in rng.integers(0, 9, (40, 3)) if len(set(t)) == 3])
+    vertices = rng.uniform(-1, 1, (9, 3))
+    vertices[8] = vertices[7]  # welded by open_edge_count, kept apart by check_watertight
+    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert sorted(edge_counts(triangles)) == sorted(counts)
+    welded = np.where(triangles == 8, 7, triangles)
+    welded = welded[(welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])]
+    _, welded_counts = np.unique(np.sort(welded[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0,
+                                 return_counts=True)
+    assert open_edge_count(vertices, triangles) == (welded_counts != 2).sum()
+    assert check_watertight((vertices, triangles), self_intersection=False).closed == bool((counts == 2).all())
 
 
 def test_split_nonmanifold_separates_sheets_that_share_a_vertex():

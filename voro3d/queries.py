@@ -10,8 +10,9 @@ import numpy as np
 from ._validate import as_points, positive_int
 from .io import mesh_arrays
 from .sampling import grid_nodes
+from .topology import open_edge_count
 
-__all__ = ["InsideOutside", "winding_number", "open_edge_count", "sdf_grid", "point_areas", "point_winding_number",
+__all__ = ["InsideOutside", "winding_number", "sdf_grid", "point_areas", "point_winding_number",
            "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "WINDING_THREADS", "FAST_WINDING_MARGIN"]
 
 # Ray directions of the inside test: mutually orthogonal and far from the axes and diagonals, so
@@ -116,19 +117,6 @@ def winding_number(mesh_vertices, mesh_triangles, queries, *, chunk: int | None 
     with ThreadPoolExecutor(max_workers=WINDING_THREADS) as pool:
         list(pool.map(block, starts))
     return result
-
-
-def open_edge_count(vertices: np.ndarray, triangles: np.ndarray) -> int:
-    """Number of edges not shared by exactly two triangles, after welding coincident vertices.
-
-    The same test as ``trimesh.Trimesh.is_watertight``: zero means closed and edge-manifold.
-    """
-    _, weld = np.unique(vertices, axis=0, return_inverse=True)
-    welded = weld.reshape(-1)[triangles]
-    welded = welded[(welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])]
-    edges = np.sort(welded[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    return int((counts != 2).sum())
 
 
 class InsideOutside:

@@ -9,6 +9,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+__all__ = ["half_edges", "edge_groups", "edge_counts", "open_edge_count", "twins", "umbrellas", "split_nonmanifold"]
+
 
 def half_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start and end vertex of every half-edge, each ``(3 f,)`` int64."""
@@ -44,6 +46,28 @@ def edge_groups(triangles: np.ndarray):
     return order, group, np.flatnonzero(is_start), (start < end)[order]
 
 
+def edge_counts(triangles: np.ndarray, *, groups=None) -> np.ndarray:
+    """Triangles on each undirected edge, ``(e,)`` int64 in the edge ids of :func:`edge_groups`.
+
+    ``groups`` is the result of :func:`edge_groups` for ``triangles``, if already computed.
+    """
+    order, _, starts, _ = edge_groups(triangles) if groups is None else groups
+    return np.diff(np.append(starts, order.size))
+
+
+def open_edge_count(vertices: np.ndarray, triangles: np.ndarray) -> int:
+    """Number of edges not shared by exactly two triangles, after welding coincident vertices.
+
+    The same test as ``trimesh.Trimesh.is_watertight``: zero means closed and edge-manifold.
+    Welding first makes a triangle soup (an STL file) count as closed; triangles that welding
+    collapses are dropped.
+    """
+    _, weld = np.unique(vertices, axis=0, return_inverse=True)
+    welded = weld.reshape(-1)[triangles]
+    welded = welded[(welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])]
+    return int((edge_counts(welded) != 2).sum())
+
+
 def twins(vertices: np.ndarray, triangles: np.ndarray, *, separate: np.ndarray | None = None, groups=None):
     """Pair every half-edge with an opposite one.
 
@@ -68,8 +92,8 @@ def twins(vertices: np.ndarray, triangles: np.ndarray, *, separate: np.ndarray |
         The opposite half-edge; ``-1`` where none exists (open or inconsistently oriented).
     order, group, starts : see :func:`edge_groups`
     """
-    order, group, starts, forward = edge_groups(triangles) if groups is None else groups
-    counts = np.diff(np.append(starts, order.size))
+    order, group, starts, forward = groups = edge_groups(triangles) if groups is None else groups
+    counts = edge_counts(triangles, groups=groups)
     twin = np.full(order.size, -1, np.int64)
 
     pair = counts[group] == 2
@@ -171,8 +195,8 @@ def split_nonmanifold(vertices: np.ndarray, triangles: np.ndarray, *, max_rounds
         new_vertices[labels] = vertices[corner_vertex]
         new_tri = labels.reshape(-1, 3)
         # Two sheets that still share both ends of an edge: pair that edge the other way.
-        order2, group2, starts2, _ = edge_groups(new_tri)
-        counts2 = np.diff(np.append(starts2, order2.size))
+        order2, group2, starts2, _ = groups2 = edge_groups(new_tri)
+        counts2 = edge_counts(new_tri, groups=groups2)
         crowded = counts2[group2] > 2
         if not crowded.any():
             return new_vertices, new_tri

@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .io import mesh_arrays, to_triangle_mesh
-from .topology import edge_groups, twins, umbrellas
+from .topology import edge_counts, edge_groups, twins, umbrellas
 
 
 @dataclass(frozen=True)
@@ -47,8 +47,8 @@ def _topology_flags(vertices, triangles):
     if triangles.size == 0:
         return False, False, False, False
     groups = edge_groups(triangles)
-    order, group, starts, forward = groups
-    counts = np.diff(np.append(starts, order.size))
+    _, group, starts, forward = groups
+    counts = edge_counts(triangles, groups=groups)
     closed = bool((counts == 2).all())
     edge_manifold = bool((counts <= 2).all())
     forward_count = np.bincount(group, weights=forward.astype(float), minlength=starts.size)
