@@ -2,11 +2,11 @@
 point clouds; signed-distance grids."""
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ._system import available_cpus
 from ._validate import as_points, positive_int
 from .io import mesh_arrays
 from .sampling import grid_nodes
@@ -29,7 +29,9 @@ RAY_DIRECTIONS = np.array([
 # Query-triangle pairs per block in :func:`winding_number`; about ten float64 arrays of this many
 # entries are alive at once per thread, so 2**21 pairs and up to four threads peak near 0.7 GB.
 WINDING_PAIRS_PER_BLOCK = 2**21
-WINDING_THREADS = min(4, os.cpu_count() or 1)
+# Threads of :func:`winding_number`: the CPUs this process may run on (its affinity, which a
+# ``voro3d batch`` worker sets before it imports this module), at most four.
+WINDING_THREADS = min(4, available_cpus())
 # Fast winding numbers this close to 0.5 are recomputed exactly before the inside test; their
 # error was below 0.0034 on every query tried (dev meshes: grid nodes and random points).
 FAST_WINDING_MARGIN = 0.05

@@ -14,7 +14,6 @@ import sys
 import threading
 import time
 
-from .._system import available_cpus
 from .plan import ShapeTask, _result
 
 __all__ = ["process_shape"]
@@ -111,9 +110,9 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
     from ..metrics import evaluate
     from ..watertight import check_watertight
 
-    # Winding numbers run on up to queries.WINDING_THREADS threads, a number set at import from
-    # the whole machine; a worker has ``threads`` CPUs (its affinity, when pinned).
-    queries.WINDING_THREADS = max(1, min(queries.WINDING_THREADS, threads, available_cpus()))
+    # queries.WINDING_THREADS follows the affinity this worker was pinned to before the import; an
+    # unpinned worker (Ray's, or more workers x threads than CPUs) must still keep to ``threads``.
+    queries.WINDING_THREADS = max(1, min(queries.WINDING_THREADS, threads))
     box = o3d.geometry.TriangleMesh.create_box()
     _reconstruct(box, method, grid=8, steps=2, seed=0, model=model, threads=threads)
     corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
