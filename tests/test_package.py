@@ -18,6 +18,27 @@ def test_public_names_resolve(name):
     assert getattr(voro3d, name) is not None
 
 
+PACKAGE = Path(voro3d.__file__).parent
+SOURCES = sorted(PACKAGE.rglob("*.py"))
+# Modules a user may import: every one whose dotted path has no part starting with "_".
+PUBLIC_MODULES = [name for name in (".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__")
+                                    for path in SOURCES) if not any(part.startswith("_") for part in name.split("."))]
+
+
+@pytest.mark.parametrize("module", PUBLIC_MODULES)
+def test_public_modules_declare_all(module):
+    import importlib
+
+    imported = importlib.import_module(module)
+    assert isinstance(imported.__all__, list) and len(set(imported.__all__)) == len(imported.__all__)
+    assert [name for name in imported.__all__ if not hasattr(imported, name)] == []
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda path: path.relative_to(PACKAGE).as_posix())
+def test_no_module_over_500_lines(path):
+    assert len(path.read_text().splitlines()) <= 500
+
+
 def test_import_is_light():
     code = "import sys, voro3d; heavy = {'torch', 'open3d', 'onnxruntime'} & set(sys.modules); print(sorted(heavy))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

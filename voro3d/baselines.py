@@ -11,6 +11,8 @@ import numpy as np
 from ._validate import as_sdf_grid
 from .io import mesh_arrays
 
+__all__ = ["dual_contouring", "marching_cubes"]
+
 # Weight of the pull towards the mean crossing point in the dual-contouring QEF, per Hermite sample.
 # It keeps flat cells (rank-1 normal matrices) well posed and costs sharp corners about 1% of
 # their distance to the mass point. On the dev meshes 0.01 beat 0.05 on CAD parts at 32^3 and

@@ -10,6 +10,8 @@ import json
 import sys
 from pathlib import Path
 
+__all__ = ["build_parser", "main"]
+
 
 def _extract(args) -> None:
     from .extract import VoroMesh

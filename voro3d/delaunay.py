@@ -9,6 +9,8 @@ import itertools
 
 import numpy as np
 
+__all__ = ["bounding_generators", "circumcenters", "delaunay_with_box"]
+
 _BOX_CORNERS = np.array(list(itertools.product((0.0, 1.0), repeat=3)))
 # Relative |det| below which a circumcentre is recomputed exactly (slivers).
 _SLIVER_RATIO = 1e-3

@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+__all__ = ["main", "run"]
+
 
 def run(out: Path, *, shape: str = "bracket", grid: int = 32, quiet: bool = False) -> dict:
     """Fit ``shape`` at ``grid``, write meshes, metrics and a picture; return the metrics."""

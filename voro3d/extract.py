@@ -18,6 +18,8 @@ from ._validate import as_mask, as_points
 from .delaunay import circumcenters, delaunay_with_box
 from .topology import split_nonmanifold
 
+__all__ = ["DEFAULT_TOLERANCE", "VoroMesh", "extract_mesh", "voronoi_surface"]
+
 DEFAULT_TOLERANCE = 1e-7
 
 # The six edges of a positively oriented tetrahedron (a, b, c, d), each written as an even

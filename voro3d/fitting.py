@@ -21,6 +21,8 @@ from .occupancy import label_cells
 from .queries import InsideOutside
 from .sampling import sample_surface
 
+__all__ = ["FitInfo", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples", "fit_with_info"]
+
 # Surface samples per grid face, n_samples = SAMPLES_PER_FACE * grid**2 (official code).
 SAMPLES_PER_FACE = 150
 

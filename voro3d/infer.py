@@ -30,6 +30,9 @@ import numpy as np
 from ._validate import as_sdf_grid
 from .extract import VoroMesh
 
+__all__ = ["BAND", "DEFAULT_MODEL", "INPUT_NAMES", "NEAR", "OUTPUT_NAMES", "NetworkInput", "Predictor", "assemble",
+           "check_sdf", "fixed_generators", "network_input", "predict", "predict_mesh", "sdf_at"]
+
 # The shipped network is package data (its card, config and loss curve are in the repository's
 # models/). voro3d has a compiled extension, so it is never imported from a zip archive and
 # importlib.resources gives a real file that onnxruntime can open.

@@ -19,6 +19,9 @@ import numpy as np
 
 from ._validate import as_points
 
+__all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "NormalizationFrame", "atomic_path", "fit_frame", "load_mesh",
+           "load_points", "mesh_arrays", "ndc_frame", "save_mesh", "to_triangle_mesh", "vertex_normals"]
+
 # Vertices closer than this fraction of the bounding-box diagonal are one vertex. Files repeat a
 # position bit-for-bit at OBJ UV seams and in STL triangle soups, so a tiny tolerance suffices and
 # never merges genuinely distinct vertices.

@@ -18,6 +18,9 @@ import torch
 
 from ._validate import as_points, positive_int
 
+__all__ = ["DEFAULT_K", "PAIR_BLOCK", "bisector_distance", "bisector_pairs", "knn_candidates", "nearest_indices",
+           "voroloss"]
+
 # The official code (``Voroloss``, ``VoronoiValues.kedge + 1``) searches the nearest generator
 # plus the 10 next ones. The generators of a fit form a band about one voxel deep on each side of
 # the surface, so the faces of the cell around a surface sample that lie near the sample are

@@ -13,6 +13,8 @@ from ._validate import positive_int
 from .io import mesh_arrays, ndc_frame
 from .sampling import sample_surface
 
+__all__ = ["CHAMFER_FACTOR", "evaluate"]
+
 # The paper's tables print CD multiplied by this factor.
 CHAMFER_FACTOR = 1e5
 

@@ -8,6 +8,8 @@ import numpy as np
 from ._validate import as_points
 from .delaunay import circumcenters, delaunay_with_box
 
+__all__ = ["cell_interior_points", "label_cells"]
+
 
 def cell_interior_points(generators) -> np.ndarray:
     """A point inside each generator's Voronoi cell: the mean of the cell's Voronoi vertices.

@@ -11,6 +11,8 @@ import numpy as np
 
 from .io import to_triangle_mesh
 
+__all__ = ["example_mesh", "example_names"]
+
 
 def _sphere() -> tuple[np.ndarray, np.ndarray]:
     """Icosphere of radius 1 (5120 triangles)."""

@@ -8,6 +8,8 @@ import numpy as np
 from .io import mesh_arrays, to_triangle_mesh
 from .topology import edge_counts, edge_groups, twins, umbrellas
 
+__all__ = ["WatertightReport", "assert_closed_manifold", "check_watertight", "self_intersections", "signed_volume"]
+
 
 @dataclass(frozen=True)
 class WatertightReport:

@@ -9,6 +9,8 @@ import os
 import platform
 from pathlib import Path
 
+__all__ = ["machine_description"]
+
 
 def machine_description() -> str:
     """CPU model and core count, for training records and benchmark tables."""

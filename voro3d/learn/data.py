@@ -28,6 +28,8 @@ from ..io import MESH_SUFFIXES, atomic_path, fit_frame, load_mesh, mesh_arrays
 from ..queries import InsideOutside, sdf_grid
 from ..sampling import sample_surface
 
+__all__ = ["DatasetSpec", "ShapeSet", "build_dataset", "cad_shape", "organic_shape"]
+
 log = logging.getLogger(__name__)
 
 # Segments of every circle: enough that facets stay below a 64^3 voxel on the largest parts.

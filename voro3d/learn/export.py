@@ -25,6 +25,8 @@ import torch
 from ..infer import INPUT_NAMES, NEAR, OUTPUT_NAMES, check_sdf, network_input
 from .model import VoroNet, load_checkpoint
 
+__all__ = ["ExportReport", "TOLERANCE", "check_grids", "export_model", "export_onnx"]
+
 OPSET = 17
 # Largest offset difference (voxel units) between onnxruntime and torch that export accepts.
 TOLERANCE = 1e-4

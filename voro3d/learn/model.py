@@ -25,6 +25,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+__all__ = ["VoroNet", "load_checkpoint", "save_checkpoint"]
+
 # Slope of the leaky ReLUs (the official code's).
 SLOPE = 0.01
 

@@ -34,6 +34,8 @@ from . import machine_description
 from .data import ShapeSet, build_dataset
 from .model import VoroNet, load_checkpoint, save_checkpoint
 
+__all__ = ["augment", "cell_labels", "load_config", "shape_loss", "train_main"]
+
 DEFAULTS = {
     "seed": 0,
     "threads": 1,
