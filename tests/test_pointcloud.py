@@ -6,7 +6,7 @@ import open3d as o3d
 import pytest
 
 from voro3d.metrics import evaluate
-from voro3d.pointcloud import (cloud_stats, imls, local_dimension, outlier_mask, reconstruct_points, repair_normals,
+from voro3d.pointcloud import (cloud_stats, fill_ratio, imls, local_dimension, outlier_mask, reconstruct_points, repair_normals,
                                transfer_colors)
 from voro3d.pointcloud.surface import winding_level
 from voro3d.reconstruction import reconstruct
@@ -87,10 +87,19 @@ def test_noise_estimate_follows_the_noise(sphere_cloud):
     assert clean < 0.008 and 0.01 < noisy < 0.04
 
 
-def test_local_dimension_tells_surfaces_from_volumes(sphere_cloud):
+def test_local_dimension_and_fill_tell_surfaces_from_volumes(sphere_cloud):
     points, _ = sphere_cloud
-    assert local_dimension(points) < 2.3
-    assert local_dimension(np.random.default_rng(6).uniform(-1, 1, (4000, 3))) > 2.6
+    volume = np.random.default_rng(6).uniform(-1, 1, (4000, 3))
+    assert local_dimension(points) < 2.3 and local_dimension(volume) > 2.6
+    assert fill_ratio(points, cloud_stats(points).median_spacing) < 0.25
+    assert fill_ratio(volume, cloud_stats(volume).median_spacing) > 0.6
+
+
+def test_a_thin_plate_is_a_surface():
+    rng = np.random.default_rng(10)
+    plate = np.c_[rng.uniform(-1, 1, (6000, 2)), rng.choice([0.0, 0.02], 6000)]  # two sheets 0.02 apart
+    out = reconstruct(plate, grid=32, steps=100)
+    assert check_watertight(out).watertight
 
 
 def test_repair_normals_fills_a_few_and_refuses_many(sphere_cloud):

@@ -4,10 +4,10 @@ io -> pointcloud.preprocess (outliers, spacing, noise) -> pointcloud.normals -> 
 (IMLS + winding-number field, proxy mesh) -> pointcloud.reconstruct (samples, fit, colours).
 """
 from .normals import estimate_normals, repair_normals
-from .preprocess import cloud_stats, local_dimension, outlier_mask
+from .preprocess import cloud_stats, fill_ratio, local_dimension, outlier_mask
 from .reconstruct import PointCloudInfo, auto_grid, max_supported_grid, reconstruct_points, transfer_colors
 from .surface import TargetSurface, imls, target_surface
 
-__all__ = ["estimate_normals", "repair_normals", "cloud_stats", "local_dimension", "outlier_mask", "PointCloudInfo",
+__all__ = ["estimate_normals", "repair_normals", "cloud_stats", "fill_ratio", "local_dimension", "outlier_mask", "PointCloudInfo",
            "auto_grid", "max_supported_grid", "reconstruct_points", "transfer_colors", "TargetSurface", "imls",
            "target_surface"]
