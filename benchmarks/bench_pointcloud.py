@@ -125,7 +125,7 @@ def _colour_error(mesh, source, low, high):
     return float(np.abs(np.asarray(mesh.vertex_colors)[nearest] - position_colours(truth, low, high)).mean())
 
 
-def run_condition(source, name, condition, grid, picture_dir):
+def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=True):
     import open3d as o3d
 
     from voro3d.io import mesh_arrays, save_mesh
@@ -157,6 +157,8 @@ def run_condition(source, name, condition, grid, picture_dir):
         row["voromesh"] = dict(error=f"{type(error).__name__}: {error}", watertight=False,
                                seconds=time.perf_counter() - start)
         meshes = {}
+    if not with_poisson:
+        return dict(row, poisson={})
     tried = {depth: (evaluate(mesh, source), mesh, seconds) for depth, (mesh, seconds) in poisson(points, colours).items()}
     depth = min(tried, key=lambda d: tried[d][0]["chamfer_x1e5"])
     scores, mesh, seconds = tried[depth]
@@ -247,28 +249,37 @@ def write(out: Path, meta, rows, scans):
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     totals = dict(voromesh=0.0, poisson=0.0)
     for condition in CONDITIONS:
-        group = [r for r in rows if r["condition"] == condition]
-        if not group:
-            continue
-        ok = [r for r in group if "chamfer_x1e5" in r["voromesh"]]
-        cd_v, cd_p = _mean(ok, "voromesh", "chamfer_x1e5"), _mean(ok, "poisson", "chamfer_x1e5")
-        nc_v, nc_p = _mean(ok, "voromesh", "nc"), _mean(ok, "poisson", "nc")
-        closed = 100.0 * np.mean([r["voromesh"].get("watertight", False) for r in group])
-        one = 100.0 * np.mean([r["voromesh"].get("pieces") == 1 for r in group])
-        one_p = 100.0 * np.mean([r["poisson"]["pieces"] == 1 for r in group])
-        seconds = {m: float(np.sum([r[m]["seconds"] for r in group])) for m in totals}
-        for m in totals:
-            totals[m] += seconds[m]
-        lines.append(f"| {condition} | {len(group)} ({len(ok)} meshes) | {cd_v:.3f} | {cd_p:.3f} | {cd_v / cd_p:.2f} | "
-                     f"{nc_v:.3f} | {nc_p:.3f} | {nc_v - nc_p:+.3f} | {_mean(ok, 'voromesh', 'f1'):.3f} | "
-                     f"{_mean(ok, 'poisson', 'f1'):.3f} | {closed:.0f} | {one:.0f} ({one_p:.0f}) | "
-                     f"{seconds['voromesh'] / len(group):.1f} | {seconds['poisson'] / len(group):.1f} |")
+        everything = [r for r in rows if r["condition"] == condition]
+        group = [r for r in everything if r["poisson"]]
+        for label, subset, paired in ((condition, group, True),
+                                      (f"{condition}, all {len(everything)} (VoroMesh only)", everything, False)):
+            if not subset or (not paired and len(everything) == len(group)):
+                continue
+            ok = [r for r in subset if "chamfer_x1e5" in r["voromesh"]]
+            cd_v, nc_v = _mean(ok, "voromesh", "chamfer_x1e5"), _mean(ok, "voromesh", "nc")
+            closed = 100.0 * np.mean([r["voromesh"].get("watertight", False) for r in subset])
+            one = 100.0 * np.mean([r["voromesh"].get("pieces") == 1 for r in subset])
+            v_seconds = float(np.sum([r["voromesh"]["seconds"] for r in subset]))
+            if not paired:
+                lines.append(f"| {label} | {len(subset)} ({len(ok)} meshes) | {cd_v:.3f} | - | - | {nc_v:.3f} | - | - | "
+                             f"{_mean(ok, 'voromesh', 'f1'):.3f} | - | {closed:.0f} | {one:.0f} | "
+                             f"{v_seconds / len(subset):.1f} | - |")
+                continue
+            cd_p, nc_p = _mean(ok, "poisson", "chamfer_x1e5"), _mean(ok, "poisson", "nc")
+            one_p = 100.0 * np.mean([r["poisson"]["pieces"] == 1 for r in subset])
+            p_seconds = float(np.sum([r["poisson"]["seconds"] for r in subset]))
+            totals["voromesh"] += v_seconds
+            totals["poisson"] += p_seconds
+            lines.append(f"| {label} | {len(subset)} ({len(ok)} meshes) | {cd_v:.3f} | {cd_p:.3f} | {cd_v / cd_p:.2f} | "
+                         f"{nc_v:.3f} | {nc_p:.3f} | {nc_v - nc_p:+.3f} | {_mean(ok, 'voromesh', 'f1'):.3f} | "
+                         f"{_mean(ok, 'poisson', 'f1'):.3f} | {closed:.0f} | {one:.0f} ({one_p:.0f}) | "
+                         f"{v_seconds / len(subset):.1f} | {p_seconds / len(subset):.1f} |")
     if rows:
         splits = [r["voromesh"]["split"] for r in rows if "split" in r["voromesh"]]
         split = {k: float(np.sum([s[k] for s in splits])) for k in splits[0]} if splits else {}
-        lines += ["", f"Time summed over all runs: VoroMesh {totals['voromesh']:.0f} s, Poisson pipeline "
-                      f"{totals['poisson']:.0f} s, ratio **{totals['voromesh'] / totals['poisson']:.2f}**. VoroMesh "
-                      "split: " + ", ".join(f"{k} {v:.0f} s ({100 * v / max(sum(split.values()), 1e-9):.0f}%)"
+        ratio = totals["voromesh"] / totals["poisson"] if totals["poisson"] else float("nan")
+        lines += ["", f"Time summed over the runs with both methods: VoroMesh {totals['voromesh']:.0f} s, Poisson pipeline "
+                      f"{totals['poisson']:.0f} s, ratio **{ratio:.2f}**. VoroMesh split (all runs): " + ", ".join(f"{k} {v:.0f} s ({100 * v / max(sum(split.values()), 1e-9):.0f}%)"
                                             for k, v in split.items()) + "."]
         coloured = [r for r in rows if "colour_error" in r["voromesh"]]
         if coloured:
@@ -302,9 +313,10 @@ def write(out: Path, meta, rows, scans):
         if "error" in v:
             lines.append(f"| {r['shape']} | {r['condition']} | {v['error']} | | | | | | |")
             continue
+        poisson_cell = f"{p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / {p['f1']:.3f} ({p['depth']})" if p else "-"
         lines.append(f"| {r['shape']} | {r['condition']} | {v['chamfer_x1e5']:.3f} / {v['nc']:.3f} / {v['f1']:.3f} | "
-                     f"{p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / {p['f1']:.3f} ({p['depth']}) | {v['pieces']} | "
-                     f"{v['grid']} | {v['noise']:.2g} | {v['outliers']} | {v['seconds']:.1f} / {p['seconds']:.1f} |")
+                     f"{poisson_cell} | {v['pieces']} | "
+                     f"{v['grid']} | {v['noise']:.2g} | {v['outliers']} | {v['seconds']:.1f} / {p.get('seconds', float('nan')):.1f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
@@ -369,6 +381,8 @@ def main():
     parser.add_argument("--grid", default="64", help="VoroMesh grid, or auto")
     parser.add_argument("--scans", action="store_true", help="also the real scans in ../shared/data/scans")
     parser.add_argument("--no-shapes", action="store_true", help="scans only")
+    parser.add_argument("--no-poisson", action="store_true", help="VoroMesh only (Open3D's tangent-plane orientation "
+                        "can take minutes at 10^5 points)")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running")
     args = parser.parse_args()
@@ -393,11 +407,12 @@ def main():
     for path in paths:
         source = load_mesh(path)
         for condition in args.conditions:
-            row = run_condition(source, path.name, condition, grid, picture_dir)
+            row = run_condition(source, path.name, condition, grid, picture_dir, with_poisson=not args.no_poisson)
             rows.append(row)
             print(json.dumps({k: row[k] for k in ("shape", "condition")} |
                              {m: {k: row[m].get(k) for k in ("chamfer_x1e5", "nc", "f1", "pieces", "watertight",
-                                                             "seconds", "error")} for m in ("voromesh", "poisson")}),
+                                                             "seconds", "error")} for m in ("voromesh", "poisson")
+                                                 if m in row}),
                   flush=True)
             meta["load_after"] = load()
             write(args.out, meta, rows, scans)
