@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import as_points, positive_int
+from .pointcloud.reconstruct import MIN_POINTS
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
-MIN_POINTS = 100
 METHODS = ("fit", "learned")
 # Meshes have no spacing to choose a grid from: grid="auto" is this.
 MESH_AUTO_GRID = 32

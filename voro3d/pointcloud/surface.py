@@ -5,9 +5,10 @@ Near the points the field is an implicit moving-least-squares (IMLS) signed dist
 the distances to the points' tangent planes, with each point's kernel width set from its local
 spacing and the cloud's noise. Away from the points (holes, the far field) only the side is
 needed, and the generalized winding number of the oriented points (Barill et al. 2018) gives it,
-closing holes smoothly (at a level that also suits open, one-sided scans: :func:`winding_level`). The field is sampled on a grid finer than the VoroMesh grid; Marching
-Cubes of it gives a dense closed proxy surface whose samples are then projected onto the IMLS
-zero set, and the same grid answers inside/outside.
+closing holes smoothly (at a level that also suits open, one-sided scans: :func:`winding_level`).
+The field is sampled on a grid finer than the VoroMesh grid; Marching Cubes of it gives a dense
+closed proxy surface whose vertices are then projected onto the IMLS zero set, and the same
+grid answers inside/outside.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import numpy as np
 __all__ = ["TargetSurface", "target_surface", "imls", "winding_level"]
 
 # Neighbours that enter one IMLS evaluation. Gaussian weights beyond ~3 kernel widths vanish;
-# 24 neighbours cover that for the widths used (1.5-2 spacings).
+# 32 neighbours cover that for the widths used (0.75-1.5 spacings, more on noisy clouds).
 IMLS_NEIGHBOURS = 32
 # RIMLS refitting passes: the residual weights stop points across a sharp edge from rounding it.
 ROBUST_PASSES = 2
@@ -37,7 +38,7 @@ class TargetSurface:
 
     Attributes
     ----------
-    field : (r, r, r) float32
+    field : (r, r, r) float64
         Signed field at the grid nodes, negative inside; IMLS distance in the band around the
         points, a winding-number value further away.
     vertices : (v, 3) float64
@@ -98,10 +99,20 @@ class TargetSurface:
         elif close.any():
             from scipy.spatial import cKDTree
 
-            distance, nearest = cKDTree(self.points).query(queries[close], workers=-1)
+            tree = cKDTree(self.points)
+            distance, nearest = tree.query(queries[close], workers=-1)
             at = np.flatnonzero(close)[distance <= IMLS_BAND * self.widths[nearest]]
-            value[at], _ = imls(self.points, self.normals, self.widths, queries[at])
+            value[at], _ = imls(self.points, self.normals, self.widths, queries[at], tree=tree)
         return value < 0
+
+    def distance(self, queries: np.ndarray) -> np.ndarray:
+        """(q, 3) fit-frame points -> (q,) float64 distance to the proxy mesh (Open3D, float32)."""
+        import open3d as o3d
+
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
+                            o3d.core.Tensor(self.triangles.astype(np.uint32)))
+        return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
 
     def project(self, queries: np.ndarray) -> np.ndarray:
         """Points of the proxy mesh moved onto the IMLS zero set: one Newton step along the
@@ -164,7 +175,8 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
     return value, gradient
 
 
-def target_surface(points, normals, widths, resolution: int, *, min_support: int = 20) -> TargetSurface:
+def target_surface(points, normals, widths, resolution: int, *, dense: bool = False,
+                   min_support: int = 20) -> TargetSurface:
     """Sample the field on a ``resolution^3`` grid over ``[-1, 1]^3`` and mesh it.
 
     Parameters
@@ -175,6 +187,8 @@ def target_surface(points, normals, widths, resolution: int, *, min_support: int
         Kernel width per point (fit-frame units).
     resolution : int
         Grid nodes per axis.
+    dense : bool
+        See :attr:`TargetSurface.dense`.
     min_support : int
         Pieces of surface nearest to fewer points (or to fewer than ``SUPPORT_SHARE`` of the
         best-supported piece's) are debris and are removed (:func:`_drop_unsupported`).
@@ -221,10 +235,12 @@ def target_surface(points, normals, widths, resolution: int, *, min_support: int
         ends = [slice(None)] * 3
         ends[axis] = [0, -1]
         field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
-    supported = _drop_unsupported(field, points, min_support)
-    vertices, triangles = _marching_cubes(supported.astype(np.float32))
-    return TargetSurface(supported, vertices, triangles, points, normals, widths,
-                         removed=np.sign(supported) != np.sign(field), areas=areas, level=level)
+    vertices, triangles = _marching_cubes(field.astype(np.float32))
+    supported = _drop_unsupported(field, vertices, triangles, points, min_support)
+    if supported is not field:
+        vertices, triangles = _marching_cubes(supported.astype(np.float32))
+    return TargetSurface(supported, vertices * step - 1.0, triangles, points, normals, widths,
+                         removed=np.sign(supported) != np.sign(field), areas=areas, level=level, dense=dense)
 
 
 def winding_level(points, normals, areas, offset: float, *, n_probes: int = 20000) -> float:
@@ -244,8 +260,10 @@ def winding_level(points, normals, areas, offset: float, *, n_probes: int = 2000
     return float(np.clip(0.5 * (np.median(behind) + np.median(front)), 0.0, 0.5))
 
 
-def _drop_unsupported(field, points, min_support):
-    """The field with unsupported pieces of surface removed.
+def _drop_unsupported(field, vertices, triangles, points, min_support):
+    """The field with unsupported pieces of surface removed (``field`` itself when none is).
+
+    ``vertices, triangles`` are the Marching Cubes mesh of ``field`` in grid-index coordinates.
 
     Each connected piece of the zero set (Marching Cubes) is supported by the points nearer to it
     than to any other piece. A piece with fewer than ``min_support`` of them, or fewer than
@@ -257,9 +275,7 @@ def _drop_unsupported(field, points, min_support):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
-    from skimage.measure import marching_cubes
 
-    vertices, triangles, _, _ = marching_cubes(field, level=0.0)
     n = vertices.shape[0]
     edges = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     pieces, piece = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),
@@ -293,13 +309,11 @@ def _drop_unsupported(field, points, min_support):
 
 
 def _marching_cubes(field):
-    """Closed, outward Marching Cubes mesh of the zero set, in ``[-1, 1]^3`` coordinates (the
+    """Closed, outward Marching Cubes mesh of the zero set, in grid-index coordinates (the
     outermost nodes are outside, so the surface closes)."""
     from skimage.measure import marching_cubes
 
-    resolution = field.shape[0]
     vertices, triangles, _, _ = marching_cubes(field, level=0.0)
-    vertices = vertices * (2.0 / (resolution - 1)) - 1.0
     triangles = triangles.astype(np.int64)
     # skimage orients faces towards increasing values (outward here) by the gradient; check.
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
