@@ -176,7 +176,7 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
 
 
 def target_surface(points, normals, widths, resolution: int, *, dense: bool = False,
-                   min_support: int = 20) -> TargetSurface:
+                   min_support: int = 20, level: float | None = None) -> TargetSurface:
     """Sample the field on a ``resolution^3`` grid over ``[-1, 1]^3`` and mesh it.
 
     Parameters
@@ -192,6 +192,8 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     min_support : int
         Pieces of surface nearest to fewer points (or to fewer than ``SUPPORT_SHARE`` of the
         best-supported piece's) are debris and are removed (:func:`_drop_unsupported`).
+    level : float, optional
+        The cloud's :func:`winding_level`, when the caller has it already.
 
     Returns
     -------
@@ -226,7 +228,8 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     far = np.flatnonzero(~near)
     index = (nodes[far] + 1.0) * (0.5 * (coarse_resolution - 1))
     winding = ndimage.map_coordinates(coarse, index.T, order=1, mode="nearest")
-    level = winding_level(points, normals, areas, float(np.median(widths)))
+    if level is None:
+        level = winding_level(points, normals, areas, float(np.median(widths)))
     field[far] = (level - winding) * 2.0 * float(np.median(widths))
     field = field.reshape((resolution,) * 3)
     # The outermost nodes are outside: a solid that reaches the box (behind a one-sided scan)
