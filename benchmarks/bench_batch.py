@@ -101,7 +101,7 @@ def _run(label: str, inputs: Path, output: Path, **options) -> dict:
     from voro3d.batch import run_batch
 
     load_before = os.getloadavg()
-    summary = run_batch(inputs, output, progress=False, **options)
+    summary = run_batch(inputs, output, **options)
     load_after = os.getloadavg()
     rows = summary.rows
     ok = [row for row in rows if row["status"] == "ok"]
@@ -137,8 +137,7 @@ def _dispatch_seconds(scratch: Path, engine: str, sizes=(10, 60)) -> float:
         folder.mkdir()
         for index in range(size):
             (folder / f"broken{index:03}.ply").write_bytes(b"ply\nformat ascii 1.0\nnot a mesh\n")
-        walls.append(run_batch(folder, scratch / f"dispatch-{engine}-{size}-out", workers=2, engine=engine,
-                               progress=False).seconds)
+        walls.append(run_batch(folder, scratch / f"dispatch-{engine}-{size}-out", workers=2, engine=engine).seconds)
     return (walls[1] - walls[0]) / (sizes[1] - sizes[0])
 
 

@@ -43,7 +43,7 @@ def _one(path, grid, steps, picture_dir, queue):
     import torch
 
     from voro3d.baselines import dual_contouring, marching_cubes
-    from voro3d.fitting import fit_with_info
+    from voro3d.fitting import fit
     from voro3d.io import fit_frame, load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
     from voro3d.metrics import evaluate
     from voro3d.queries import sdf_grid
@@ -54,7 +54,7 @@ def _one(path, grid, steps, picture_dir, queue):
         source = load_mesh(path)
         open_input = open_edge_count(*mesh_arrays(source)) > 0
         start = time.perf_counter()
-        shape, info = fit_with_info(source, grid, steps=steps, progress=False, allow_open=open_input)
+        shape, info = fit(source, grid, steps=steps, allow_open=open_input)
         voromesh = shape.to_open3d()
         seconds = {"voromesh": time.perf_counter() - start}
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

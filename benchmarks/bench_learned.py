@@ -54,7 +54,7 @@ def _score(mesh, gt) -> dict:
     from voro3d.metrics import evaluate
     from voro3d.watertight import check_watertight
 
-    metrics = evaluate(mesh, gt, n_points=100_000, seed=0)
+    metrics = evaluate(mesh, gt, n_samples=100_000, seed=0)
     report = check_watertight(mesh)
     return {"chamfer_x1e5": metrics["chamfer_x1e5"], "f1": metrics["f1"], "nc": metrics["nc"],
             "watertight": bool(report.watertight), "n_triangles": metrics["n_triangles"]}

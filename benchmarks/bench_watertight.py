@@ -27,11 +27,11 @@ RESULTS = ROOT / "benchmarks" / "results"
 
 def _meshes() -> dict:
     from voro3d.extract import VoroMesh
-    from voro3d.infer import predict_mesh
+    from voro3d.infer import predict_from_mesh
     from voro3d.shapes import example_mesh
 
-    meshes = {"bracket learned 78^3": predict_mesh(example_mesh("bracket"), 78).to_open3d(),
-              "knot learned 88^3": predict_mesh(example_mesh("knot"), 88).to_open3d()}
+    meshes = {"bracket learned 78^3": predict_from_mesh(example_mesh("bracket"), 78).to_open3d(),
+              "knot learned 88^3": predict_from_mesh(example_mesh("knot"), 88).to_open3d()}
     rng = np.random.default_rng(0)
     points = rng.uniform(-1, 1, (200_000, 3))
     inside = (np.linalg.norm(points, axis=1) < 0.8) & (np.abs(points[:, 2]) < 0.5)

@@ -59,7 +59,7 @@ def load(name):
 
 def phase_row(name, mesh, grid, steps):
     cpu = time.process_time()
-    voromesh, info = fit_module.fit_with_info(mesh, grid, steps=steps, progress=False)
+    voromesh, info = fit_module.fit(mesh, grid, steps=steps)
     cpu = time.process_time() - cpu
     start = time.perf_counter()
     surface = extract_mesh(voromesh.generators, voromesh.occupancy)
@@ -138,7 +138,7 @@ def refresh_rows(name, mesh, grid, steps, thresholds):
     try:
         for threshold in thresholds:
             fit_module.REFRESH_VOXELS = threshold
-            voromesh, info = fit_module.fit_with_info(mesh, grid, steps=steps, progress=False)
+            voromesh, info = fit_module.fit(mesh, grid, steps=steps)
             surface = extract_mesh(voromesh.generators, voromesh.occupancy)
             metrics = evaluate(surface, mesh)
             exact = float(voroloss(samples, torch.tensor(frame.apply(voromesh.generators))))

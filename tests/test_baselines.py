@@ -132,8 +132,8 @@ def test_dev_meshes(dev_meshes, name):
     # DC joins the two sheets of thin parts in one cell: a few non-manifold edges are allowed.
     assert open_edge_count(*dc) < 0.01 * dc[1].shape[0]
     assert signed_volume(*mc) > 0 and signed_volume(*dc) > 0
-    mc_scores = evaluate(mc, gt, n_points=30_000)
-    dc_scores = evaluate(dc, gt, n_points=30_000)
+    mc_scores = evaluate(mc, gt, n_samples=30_000)
+    dc_scores = evaluate(dc, gt, n_samples=30_000)
     # Hermite normals let DC follow the surface between nodes better than MC at the same grid.
     assert dc_scores["chamfer"] < mc_scores["chamfer"]
     assert dc_scores["nc"] > mc_scores["nc"] > 0.9

@@ -21,7 +21,7 @@ from voro3d.shapes import example_mesh
 from voro3d.watertight import check_watertight
 
 # Small enough that a shape takes well under a second: the tests are about the batch, not the fit.
-FAST = dict(grid=16, steps=20, progress=False)
+FAST = dict(grid=16, steps=20)
 CORRUPT = b"ply\nformat ascii 1.0\nelement vertex 3\nnot a number\n"
 # The `voro3d batch` command exactly as the CLI runs it: parse, then `args.run(args)` is the exit code.
 # Ctrl-C raises KeyboardInterrupt as at a terminal, even when the tests themselves were started in
@@ -184,7 +184,7 @@ for argv in (["--help"], ["batch", "--help"]):
         assert done.code == 0, (argv, done.code)
 assert _cpu_seconds() > 0 and _peak_memory_mb() > 0
 try:
-    run_batch(sys.argv[1], sys.argv[2], memory_limit_mb=64, progress=False)
+    run_batch(sys.argv[1], sys.argv[2], memory_limit_mb=64)
 except ValueError as error:
     print(error)
 """
@@ -271,7 +271,7 @@ def test_killed_batch_keeps_finished_meshes_and_resumes(tmp_path, how):
     assert done and len(done) < len(names), "kill the batch midway"
     kept = {name: stat for name, stat in _files(output).items() if name in done}
 
-    summary = run_batch(inputs, output, workers=1, grid=16, steps=40, progress=False)
+    summary = run_batch(inputs, output, workers=1, grid=16, steps=40)
     assert summary.exit_code == EXIT_OK
     assert len(summary.skipped) == len(done)
     files = _files(output)
@@ -281,14 +281,14 @@ def test_killed_batch_keeps_finished_meshes_and_resumes(tmp_path, how):
     assert all(check_watertight(load_mesh(output / row["output"], weld=False), self_intersection=False).watertight
                for row in summary.rows)
     # A third run has nothing left to do: it starts no worker and writes nothing.
-    again = run_batch(inputs, output, workers=1, grid=16, steps=40, progress=False)
+    again = run_batch(inputs, output, workers=1, grid=16, steps=40)
     assert len(again.skipped) == len(names) and again.rows_of_this_run == []
     assert _files(output) == files
 
 
 def test_timeout_kills_the_shape_and_the_batch_goes_on(tmp_path):
     inputs = _inputs(tmp_path / "in", ("sphere",), corrupt=True)
-    summary = run_batch(inputs, tmp_path / "out", workers=1, grid=16, steps=200_000, timeout=1.0, progress=False)
+    summary = run_batch(inputs, tmp_path / "out", workers=1, grid=16, steps=200_000, timeout=1.0)
     rows = {row["input"]: row for row in summary.rows}
     assert rows["sphere.ply"]["status"] == "timeout"
     assert "no result after 1 s" in rows["sphere.ply"]["error"]
@@ -319,7 +319,7 @@ def test_memory_limit_fails_the_shape_and_is_lifted_after_it_and_eval_adds_metri
 
 def test_learned_method_loads_the_model_once_per_worker(tmp_path):
     inputs = _inputs(tmp_path / "in", ("sphere", "torus"))
-    summary = run_batch(inputs, tmp_path / "out", method="learned", workers=1, grid=32, progress=False)
+    summary = run_batch(inputs, tmp_path / "out", method="learned", workers=1, grid=32)
     assert summary.exit_code == EXIT_OK, summary.table()
     for row in summary.rows:
         assert row["settings"]["model"] == str(DEFAULT_MODEL.resolve()) and row["settings"]["steps"] is None
@@ -363,6 +363,8 @@ def test_command_line_parses_every_option(tmp_path):
     (dict(ray_address="auto"), "ray_address"),
     (dict(grid=1), "grid"),
     (dict(steps=0), "steps"),
+    (dict(method="learned", steps=10), "method='learned' takes no steps"),
+    (dict(model="voromesh.onnx"), "method='fit' takes no model"),
     (dict(workers=0), "workers"),
     (dict(threads=0), "threads"),
     (dict(timeout=0), "timeout"),

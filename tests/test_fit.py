@@ -5,16 +5,16 @@ import torch
 
 from voro3d import fitting as fit_module
 from voro3d.extract import VoroMesh, extract_mesh
-from voro3d.fitting import FitInfo, fit, fit_with_info
+from voro3d.fitting import FitInfo, fit
 from voro3d.io import load_mesh, mesh_arrays
 from voro3d.queries import InsideOutside
 from voro3d.sampling import sample_surface
 from voro3d.watertight import check_watertight
 
 # Enough steps to converge well at grids up to 32, few enough to keep this file fast.
-QUICK = dict(steps=100, milestones=(40, 60, 80), progress=False)
+QUICK = dict(steps=100, milestones=(40, 60, 80))
 # For tests of behaviour rather than quality.
-TINY = dict(steps=40, milestones=(20, 30), progress=False)
+TINY = dict(steps=40, milestones=(20, 30))
 
 DEVICES = [
     "cpu",
@@ -40,7 +40,7 @@ def sphere():
 @pytest.fixture(scope="module")
 def sphere_fit(sphere):
     # A third of the default samples: quick, and still about 40 per surface voxel.
-    return fit_with_info(sphere, 32, n_samples=50_000, **QUICK)
+    return fit(sphere, 32, n_samples=50_000, **QUICK)
 
 
 def test_sphere_is_watertight_and_close(sphere, sphere_fit):
@@ -58,7 +58,7 @@ def test_sphere_is_watertight_and_close(sphere, sphere_fit):
 def test_generators_come_back_in_the_input_frame(sphere):
     vertices, triangles = mesh_arrays(sphere)
     moved = (vertices * 10 + [100, -50, 3], triangles)
-    voromesh = fit(moved, 12, **TINY)
+    voromesh, _ = fit(moved, 12, **TINY)
     centre = voromesh.generators[voromesh.occupancy].mean(axis=0)
     np.testing.assert_allclose(centre, [100, -50, 3], atol=1.0)
     radius = np.linalg.norm(voromesh.generators - [100, -50, 3], axis=1)
@@ -69,7 +69,7 @@ def test_generators_come_back_in_the_input_frame(sphere):
 def test_torus_topology():
     torus = o3d.geometry.TriangleMesh.create_torus(torus_radius=1.0, tube_radius=0.4, radial_resolution=48,
                                                    tubular_resolution=24)
-    voromesh = fit(torus, 20, **QUICK)
+    voromesh, _ = fit(torus, 20, **QUICK)
     surface = extract_mesh(voromesh.generators, voromesh.occupancy)
     assert check_watertight(surface, self_intersection=False).watertight
     euler = len(surface.vertices) - len(surface.triangles) * 3 // 2 + len(surface.triangles)
@@ -92,19 +92,19 @@ def test_info(sphere_fit):
 
 
 def test_same_seed_same_generators(sphere):
-    first = fit(sphere, 12, **TINY)
-    again = fit(sphere, 12, **TINY)
+    first, _ = fit(sphere, 12, **TINY)
+    again, _ = fit(sphere, 12, **TINY)
     np.testing.assert_array_equal(again.generators, first.generators)
     np.testing.assert_array_equal(again.occupancy, first.occupancy)
-    other = fit(sphere, 12, seed=1, **TINY)
+    other, _ = fit(sphere, 12, seed=1, **TINY)
     assert other.generators.shape != again.generators.shape or not np.array_equal(other.generators, again.generators)
 
 
 def test_candidates_are_searched_again_after_moves(sphere, monkeypatch):
     monkeypatch.setattr(fit_module, "REFRESH_VOXELS", 0.1)
-    _, often = fit_with_info(sphere, 12, **TINY)
+    _, often = fit(sphere, 12, **TINY)
     monkeypatch.setattr(fit_module, "REFRESH_VOXELS", np.inf)
-    _, never = fit_with_info(sphere, 12, **TINY)
+    _, never = fit(sphere, 12, **TINY)
     assert often.candidate_searches > never.candidate_searches == 1
 
 
@@ -125,40 +125,42 @@ def test_adam_matches_torch_optim():
 
 
 def test_options_are_used(sphere):
-    _, info = fit_with_info(sphere, 8, steps=5, n_samples=1000, batch_fraction=0.5, k=6, progress=False)
+    _, info = fit(sphere, 8, steps=5, n_samples=1000, batch_fraction=0.5, k=6)
     assert info.n_samples == 1000 and info.losses.shape == (5,)
 
 
-def test_progress_bar_can_be_silenced(sphere, capsys):
-    fit(sphere, 6, steps=3, progress=False)
+def test_progress_bar_is_off_unless_asked_for(sphere, capsys):
+    fit(sphere, 6, steps=3)
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err == ""
+    fit(sphere, 6, steps=3, progress=True)
+    assert "VoroMesh fit" in capsys.readouterr().err
 
 
 def test_torch_threads_are_restored(sphere):
     before = torch.get_num_threads()
-    fit(sphere, 6, steps=3, progress=False)
+    fit(sphere, 6, steps=3)
     assert torch.get_num_threads() == before
 
 
 @pytest.mark.parametrize("device", DEVICES)
 def test_devices(sphere, device):
-    voromesh = fit(sphere, 8, steps=20, device=device, progress=False)
+    voromesh, _ = fit(sphere, 8, steps=20, device=device)
     assert voromesh.generators.dtype == np.float64 and voromesh.occupancy.any()
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="CUDA is available")
 def test_cuda_without_a_device_is_an_error(sphere):
     with pytest.raises(ValueError, match="CUDA"):
-        fit(sphere, 8, steps=2, device="cuda", progress=False)
+        fit(sphere, 8, steps=2, device="cuda")
 
 
 def test_open_mesh_needs_allow_open():
     vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
     open_mesh = (vertices, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2]]))
     with pytest.raises(ValueError, match="allow_open"):
-        fit(open_mesh, 6, steps=2, progress=False)
-    assert fit(open_mesh, 6, steps=2, allow_open=True, progress=False).occupancy.dtype == bool
+        fit(open_mesh, 6, steps=2)
+    assert fit(open_mesh, 6, steps=2, allow_open=True)[0].occupancy.dtype == bool
 
 
 @pytest.mark.parametrize(
@@ -181,17 +183,17 @@ def test_open_mesh_needs_allow_open():
 )
 def test_bad_arguments(sphere, kwargs, error, match):
     with pytest.raises(error, match=match):
-        fit(sphere, **{"grid": 8, "progress": False, **kwargs})
+        fit(sphere, **{"grid": 8, **kwargs})
 
 
 def test_bad_mesh():
     with pytest.raises(ValueError, match="mesh"):
-        fit((np.zeros((3, 3)), np.zeros((0, 3), int)), 8, progress=False)
+        fit((np.zeros((3, 3)), np.zeros((0, 3), int)), 8)
 
 
 def test_bunny(dev_meshes):
     bunny = load_mesh(dev_meshes / "organic_bunny.off")
-    voromesh, info = fit_with_info(bunny, 16, **QUICK)
+    voromesh, _ = fit(bunny, 16, **QUICK)
     surface = extract_mesh(voromesh.generators, voromesh.occupancy)
     assert check_watertight(surface, self_intersection=False).watertight
     vertices, _ = mesh_arrays(bunny)

@@ -7,7 +7,7 @@ import pytest
 
 from voro3d.baselines import marching_cubes
 from voro3d.extract import VoroMesh
-from voro3d.infer import DEFAULT_MODEL, NEAR, Predictor, check_sdf, network_input, predict, predict_mesh
+from voro3d.infer import DEFAULT_MODEL, NEAR, Predictor, check_sdf, network_input, predict, predict_from_mesh
 from voro3d.io import fit_frame, mesh_arrays
 from voro3d.metrics import evaluate
 from voro3d.queries import sdf_grid
@@ -48,23 +48,23 @@ def test_bracket_is_watertight_and_beats_marching_cubes(predictor, bracket):
     voro = predictor.predict(sdf)
     mesh = voro.to_open3d()
     assert check_watertight(mesh).watertight
-    learned = evaluate(mesh, gt, n_points=30_000)
-    mc = evaluate(marching_cubes(sdf), gt, n_points=30_000)
+    learned = evaluate(mesh, gt, n_samples=30_000)
+    mc = evaluate(marching_cubes(sdf), gt, n_samples=30_000)
     # Shipped model: CD 4.9 vs Marching Cubes 6.3 (x1e5, 30k points), F1 0.29 vs 0.31.
     assert learned["chamfer_x1e5"] < mc["chamfer_x1e5"]
     assert learned["chamfer_x1e5"] < 6.0
     assert learned["f1"] > 0.8 * mc["f1"]
 
 
-def test_predict_mesh_returns_generators_in_mesh_units(predictor):
+def test_predict_from_mesh_returns_generators_in_mesh_units(predictor):
     mesh = example_mesh("sphere")
     vertices, triangles = mesh_arrays(mesh)
     scaled = (vertices * 40.0 + [100.0, -5.0, 3.0], triangles)
-    voro = predictor.predict_mesh(scaled, grid=32)
+    voro = predictor.predict_from_mesh(scaled, grid=32)
     out = np.asarray(voro.to_open3d().vertices)
     np.testing.assert_allclose(out.min(axis=0), scaled[0].min(axis=0), atol=0.05 * 80)
     np.testing.assert_allclose(out.max(axis=0), scaled[0].max(axis=0), atol=0.05 * 80)
-    assert evaluate(voro.to_open3d(), scaled, n_points=20_000)["chamfer_x1e5"] < 5.0
+    assert evaluate(voro.to_open3d(), scaled, n_samples=20_000)["chamfer_x1e5"] < 5.0
 
 
 def test_fallback_adds_fixed_generators_only(predictor):
@@ -83,7 +83,7 @@ def test_module_functions_cache_the_session(tmp_path):
     first = predict(sdf)
     second = predict(sdf, model=DEFAULT_MODEL)
     np.testing.assert_array_equal(first.generators, second.generators)
-    assert isinstance(predict_mesh(example_mesh("sphere"), 24), VoroMesh)
+    assert isinstance(predict_from_mesh(example_mesh("sphere"), 24), VoroMesh)
 
 
 def test_network_input_crops_to_the_band():
@@ -125,9 +125,9 @@ def test_grid_that_is_not_a_distance(predictor):
         predictor.predict(sdf)
 
 
-def test_predict_mesh_bad_grid(predictor):
+def test_predict_from_mesh_bad_grid(predictor):
     with pytest.raises(ValueError, match="grid"):
-        predictor.predict_mesh(example_mesh("sphere"), grid=3)
+        predictor.predict_from_mesh(example_mesh("sphere"), grid=3)
 
 
 def test_missing_model(tmp_path):

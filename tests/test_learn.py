@@ -66,7 +66,7 @@ def test_dataset_arrays_and_cache_spec(tiny_run):
     assert np.linalg.norm(high - low) == pytest.approx(2.0)
     np.testing.assert_allclose((low + high) / 2, 0, atol=1e-12)
     with pytest.raises(ValueError, match="built with"):
-        build_dataset(root / "train", 3, GRID, 0, n_samples=4000)
+        build_dataset(root / "train", 3, grid=GRID, seed=0, n_samples=4000)
 
 
 def test_loss_decreases_on_one_shape(tiny_run):

@@ -72,7 +72,7 @@ def test_gradcheck_float64(device):
     rng = np.random.default_rng(1)
     generators = torch.tensor(rng.uniform(-1, 1, (30, 3)), device=device, requires_grad=True)
     samples = torch.tensor(rng.uniform(-0.7, 0.7, (80, 3)), device=device, requires_grad=True)
-    candidates = knn_candidates(samples, generators, 11)
+    candidates = knn_candidates(samples, generators, k=11)
     assert torch.autograd.gradcheck(lambda q, x: voroloss(x, q, candidates=candidates), (generators, samples))
 
 
@@ -99,7 +99,7 @@ def test_float32_agrees_with_float64(device):
 
 def test_stale_candidates_are_re_ranked():
     samples, generators = _sphere_band(grid=16, n=2000)
-    candidates = knn_candidates(samples, generators, 16)
+    candidates = knn_candidates(samples, generators, k=16)
     generators_t = torch.tensor(generators)
     expected = voroloss(samples, generators_t, candidates=candidates).item()
     # Column order does not matter: the nearest candidate is found again.
@@ -158,7 +158,7 @@ def test_knn_candidates_are_the_nearest_in_order():
     rng = np.random.default_rng(3)
     generators = rng.uniform(-1, 1, (500, 3))
     samples = rng.uniform(-1, 1, (2000, 3))
-    found = knn_candidates(samples, generators, 11)
+    found = knn_candidates(samples, generators, k=11)
     assert found.shape == (2000, 11) and found.dtype == np.int64
     distance, _ = cKDTree(generators).query(samples, k=11)
     found_distance = np.linalg.norm(samples[:, None] - generators[found], axis=-1)
@@ -167,7 +167,7 @@ def test_knn_candidates_are_the_nearest_in_order():
 
 def test_knn_candidates_cap_k_and_accept_tensors():
     generators = torch.rand(5, 3)
-    found = knn_candidates(torch.rand(7, 3), generators, 11)
+    found = knn_candidates(torch.rand(7, 3), generators, k=11)
     assert found.shape == (7, 5)
     assert np.all(np.sort(found, axis=1) == np.arange(5))
 
@@ -195,6 +195,8 @@ def test_loss_is_zero_on_bisectors():
         (np.zeros((4, 3)), torch.rand(5, 3), {"candidates": np.zeros((3, 2), int)}, ValueError, "candidates"),
         (np.zeros((4, 3)), torch.rand(5, 3), {"candidates": np.full((4, 2), 5)}, ValueError, "candidates"),
         (np.zeros((4, 3)), torch.rand(5, 3), {"candidates": np.zeros((4, 2))}, ValueError, "candidates"),
+        (np.zeros((4, 3)), torch.rand(5, 3), {"k": 4, "candidates": np.zeros((4, 2), int)}, ValueError,
+         "k or candidates, not both"),
     ],
 )
 def test_bad_input(samples, generators, kwargs, error, match):
@@ -212,4 +214,4 @@ def test_bad_input(samples, generators, kwargs, error, match):
 )
 def test_knn_candidates_bad_input(samples, generators, k, match):
     with pytest.raises(ValueError, match=match):
-        knn_candidates(samples, generators, k)
+        knn_candidates(samples, generators, k=k)

@@ -18,13 +18,13 @@ def cube():
     return mesh_arrays(o3d.geometry.TriangleMesh.create_box(1.0, 1.0, 1.0))
 
 
-def sampling_floor(ndc_area, n_points, delta):
+def sampling_floor(ndc_area, n_samples, delta):
     """Chamfer and F1 of a surface against itself, from independent uniform samples.
 
     Nearest-neighbour distances among n uniform points on area A are Rayleigh distributed:
     E[d^2] = A / (pi n) and P(d < delta) = 1 - exp(-pi n delta^2 / A).
     """
-    return 2 * ndc_area / (np.pi * n_points), 1 - np.exp(-np.pi * n_points * delta**2 / ndc_area)
+    return 2 * ndc_area / (np.pi * n_samples), 1 - np.exp(-np.pi * n_samples * delta**2 / ndc_area)
 
 
 def test_identical_surfaces_sit_at_the_sampling_floor(cube):
@@ -46,7 +46,7 @@ def test_offset_surface(cube, offset, f1):
     # offset / sqrt(3), added in quadrature to the sampling floor.
     vertices, triangles = cube
     grown = (vertices - 0.5) * (1 + 2 * offset) + 0.5
-    result = evaluate((grown, triangles), cube, n_points=20_000)
+    result = evaluate((grown, triangles), cube, n_samples=20_000)
     floor, _ = sampling_floor(2.0, 20_000, 0.003)
     assert result["chamfer"] == pytest.approx(2 * offset**2 / 3 + floor, rel=0.1)
     if f1 is not None:
@@ -60,33 +60,33 @@ def test_uses_the_ground_truth_frame(cube):
     vertices, triangles = cube
     rng = np.random.default_rng(0)
     pred = (vertices * [1.0, 1.1, 0.9] + rng.normal(scale=0.01, size=vertices.shape), triangles)
-    base = evaluate(pred, cube, n_points=5000)
+    base = evaluate(pred, cube, n_samples=5000)
     moved = evaluate((pred[0] * 37.0 + [5, -3, 100], triangles), (vertices * 37.0 + [5, -3, 100], triangles),
-                     n_points=5000)
+                     n_samples=5000)
     for key in KEYS:
         assert moved[key] == pytest.approx(base[key], rel=1e-6, abs=1e-12)
     # Scaling only the prediction is an error the metric must see.
-    assert evaluate((pred[0] * 2, triangles), cube, n_points=5000)["chamfer"] > 10 * base["chamfer"]
+    assert evaluate((pred[0] * 2, triangles), cube, n_samples=5000)["chamfer"] > 10 * base["chamfer"]
 
 
 def test_open3d_and_array_inputs_agree_and_seed_is_reproducible(cube):
     box = o3d.geometry.TriangleMesh.create_box(1.0, 1.0, 1.0)
     sphere = o3d.geometry.TriangleMesh.create_sphere(0.5, 10).translate([0.5, 0.5, 0.5])
-    first = evaluate(sphere, box, n_points=3000, seed=4)
-    assert first == evaluate(mesh_arrays(sphere), cube, n_points=3000, seed=4)
-    assert first != evaluate(sphere, box, n_points=3000, seed=5)
+    first = evaluate(sphere, box, n_samples=3000, seed=4)
+    assert first == evaluate(mesh_arrays(sphere), cube, n_samples=3000, seed=4)
+    assert first != evaluate(sphere, box, n_samples=3000, seed=5)
 
 
 def test_normal_consistency_ignores_orientation(cube):
     vertices, triangles = cube
-    flipped = evaluate((vertices, triangles[:, ::-1]), cube, n_points=5000)
-    assert flipped["nc"] == pytest.approx(evaluate(cube, cube, n_points=5000)["nc"], abs=0.01)
+    flipped = evaluate((vertices, triangles[:, ::-1]), cube, n_samples=5000)
+    assert flipped["nc"] == pytest.approx(evaluate(cube, cube, n_samples=5000)["nc"], abs=0.01)
     assert flipped["nc"] > 0.97
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
-    ({"n_points": 0}, ValueError, "n_points must be >= 1"),
-    ({"n_points": 1.5}, TypeError, "n_points must be an integer"),
+    ({"n_samples": 0}, ValueError, "n_samples must be >= 1"),
+    ({"n_samples": 1.5}, TypeError, "n_samples must be an integer"),
     ({"delta": 0.0}, ValueError, "delta must be finite and > 0"),
     ({"delta": np.nan}, ValueError, "delta must be finite and > 0"),
 ])
@@ -112,10 +112,10 @@ def test_dev_marching_cubes_baseline(dev_meshes, name):
     vertices, triangles = marching_cubes(sdf_grid(frame.apply_mesh(gt), 32))
     # Back in the file's units: the metric must not care which frame the pair arrives in.
     pred = (frame.invert(vertices), triangles)
-    result = evaluate(pred, gt, n_points=50_000)
+    result = evaluate(pred, gt, n_samples=50_000)
     assert 0.3 < result["f1"] < 0.95
     assert 1e-6 < result["chamfer"] < 1e-4
     assert result["nc"] > 0.9
     assert result["n_triangles"] == triangles.shape[0]
-    same = evaluate((vertices, triangles), frame.apply_mesh(gt), n_points=50_000)
+    same = evaluate((vertices, triangles), frame.apply_mesh(gt), n_samples=50_000)
     assert same["chamfer"] == pytest.approx(result["chamfer"], rel=1e-6)

@@ -84,7 +84,7 @@ def test_cli_fit_eval_render(tmp_path, capsys):
                  "--png", str(png), "--save-generators", str(gens), "-q"]) == 0
     assert out.is_file() and png.stat().st_size > 10_000 and gens.is_file()
     capsys.readouterr()
-    assert main(["eval", str(out), str(tmp_path / "torus.ply"), "--json", "--n-points", "20000"]) == 0
+    assert main(["eval", str(out), str(tmp_path / "torus.ply"), "--json", "--n-samples", "20000"]) == 0
     result = json.loads(capsys.readouterr().out)
     # 20k samples put the F1 floor low (see test_metrics); CD is the meaningful bound here.
     assert result["watertight"]["watertight"] and result["chamfer_x1e5"] < 10 and result["f1"] > 0.2
@@ -107,19 +107,26 @@ def test_cli_predict_from_mesh_and_sdf(tmp_path, capsys):
     np.save(tmp_path / "bad.npy", np.zeros((32, 32, 31), np.float32))
     assert main(["predict", str(tmp_path / "bad.npy"), "-o", str(tmp_path / "c.ply")]) == 2
     assert "sdf" in capsys.readouterr().err.lower() and not (tmp_path / "c.ply").exists()
+    # An SDF grid has its own size: a --grid for it would be ignored, so it is refused.
+    assert main(["predict", str(tmp_path / "sdf.npy"), "-o", str(tmp_path / "d.ply"), "--grid", "32"]) == 2
+    assert "--grid applies to a mesh INPUT only" in capsys.readouterr().err and not (tmp_path / "d.ply").exists()
 
 
-def test_cli_reconstruct_point_cloud(tmp_path):
+def test_cli_reconstruct_point_cloud(tmp_path, capsys):
     from voro3d.sampling import sample_surface
     from voro3d.shapes import example_mesh
 
     points, normals = sample_surface(example_mesh("torus"), 5000, seed=0)
     np.save(tmp_path / "cloud.npy", np.hstack([points, normals]))
-    for method, extra in (("fit", []), ("learned", []), ("fit", ["--denoise"])):
+    for method, extra in (("fit", ["--steps", "40"]), ("learned", []), ("fit", ["--steps", "40", "--denoise"])):
         out = tmp_path / f"{method}{len(extra)}.ply"
         assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(out), "--grid", "16",
-                     "--steps", "40", "--method", method, "-q", *extra]) == 0
+                     "--method", method, "-q", *extra]) == 0
         assert voro3d.check_watertight(voro3d.load_mesh(out, weld=False), self_intersection=False).watertight
+    capsys.readouterr()
+    assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(tmp_path / "x.ply"), "--method", "learned",
+                 "--steps", "40"]) == 2
+    assert "method='learned' takes no steps" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()
 
 
 def test_public_functions_survive_submodule_imports():

@@ -127,7 +127,7 @@ def test_sparse_cloud_gives_one_closed_smooth_piece():
     shape, info = reconstruct_points(points, grid=32, steps=150)
     out = shape.to_open3d()
     assert check_watertight(out).watertight and _pieces(out) == 1
-    scores = evaluate(out, mesh, n_points=20000)
+    scores = evaluate(out, mesh, n_samples=20000)
     assert scores["nc"] > 0.96 and scores["chamfer_x1e5"] < 25  # measured 0.977, 16.6
 
 
@@ -140,7 +140,7 @@ def test_outliers_leave_no_debris():
     out = shape.to_open3d()
     assert info.n_outliers > 60  # of 160; the rest lie inside the tube or on the surface
     assert check_watertight(out).watertight and _pieces(out) == 1
-    assert evaluate(out, mesh, n_points=20000)["chamfer_x1e5"] < 20
+    assert evaluate(out, mesh, n_samples=20000)["chamfer_x1e5"] < 20
 
 
 def test_two_distant_objects_are_both_kept():

@@ -33,7 +33,7 @@ def test_point_cloud_with_normals(torus_cloud):
     mesh, points, normals = torus_cloud
     out = reconstruct(_cloud(points, normals), **FAST)
     assert check_watertight(out).watertight
-    assert evaluate(out, mesh, n_points=20000)["chamfer_x1e5"] < 20
+    assert evaluate(out, mesh, n_samples=20000)["chamfer_x1e5"] < 20
 
 
 @pytest.mark.parametrize("form", ["numpy6", "numpy3", "tensor", "file"])
@@ -93,17 +93,17 @@ def test_noisy_and_thinned_clouds_stay_watertight_and_close(torus_cloud, noise, 
     cloud = cloud[rng.random(cloud.shape[0]) < keep]
     out = reconstruct(cloud, **FAST)
     assert check_watertight(out).watertight
-    assert evaluate(out, mesh, n_points=20000)["chamfer_x1e5"] < 60
+    assert evaluate(out, mesh, n_samples=20000)["chamfer_x1e5"] < 60
 
 
 def test_noise_is_detected_and_smoothed_without_flags(torus_cloud):
     mesh, points, _ = torus_cloud
     diagonal = np.linalg.norm(points.max(0) - points.min(0))
     noisy = points + np.random.default_rng(3).normal(scale=0.01 * diagonal, size=points.shape)
-    raw = evaluate(reconstruct(noisy, grid=32, steps=100, denoise=False), mesh, n_points=20000)
+    raw = evaluate(reconstruct(noisy, grid=32, steps=100, denoise=False), mesh, n_samples=20000)
     out = reconstruct(noisy, grid=32, steps=100)
     assert check_watertight(out).watertight
-    scores = evaluate(out, mesh, n_points=20000)
+    scores = evaluate(out, mesh, n_samples=20000)
     # Measured: NC 0.906 -> 0.949, CD 8.1 -> 7.0.
     assert scores["nc"] > raw["nc"] + 0.02 and scores["chamfer_x1e5"] < raw["chamfer_x1e5"]
 

@@ -61,9 +61,9 @@ def test_sampling_is_deterministic(sphere):
 
 
 def test_sample_surface_errors(sphere):
-    with pytest.raises(ValueError, match="n must be >= 1"):
+    with pytest.raises(ValueError, match="n_samples must be >= 1"):
         sample_surface(sphere, 0)
-    with pytest.raises(TypeError, match="n must be an integer"):
+    with pytest.raises(TypeError, match="n_samples must be an integer"):
         sample_surface(sphere, 10.0)
     with pytest.raises(ValueError, match="zero surface area"):
         sample_surface((np.zeros((3, 3)), np.array([[0, 1, 2]])), 10)

@@ -74,3 +74,21 @@ def positive_int(value, name: str, *, minimum: int = 1) -> int:
     if value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value}")
     return int(value)
+
+
+def method_options(method: str, owner: str, **options) -> dict:
+    """The ``options`` given (not None), refused unless ``method`` is ``owner``, the method that uses them.
+
+    Another method would ignore them, so they are refused instead of dropped: a caller who sets
+    ``steps`` for the learned model expects it to matter.
+
+    Raises
+    ------
+    ValueError
+        An option given for a method other than ``owner``, naming both.
+    """
+    given = {name: value for name, value in options.items() if value is not None}
+    if given and method != owner:
+        raise ValueError(f"method={method!r} takes no {' or '.join(given)} (only method={owner!r} uses "
+                         f"{'it' if len(given) == 1 else 'them'})")
+    return given

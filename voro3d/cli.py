@@ -28,8 +28,8 @@ def _fit(args) -> None:
     from .io import load_mesh, save_mesh
 
     source = load_mesh(args.mesh)
-    shape = fit(source, grid=args.grid, steps=args.steps, seed=args.seed, device=args.device,
-                progress=not args.quiet)
+    shape, _ = fit(source, grid=args.grid, steps=args.steps, seed=args.seed, device=args.device,
+                   progress=not args.quiet)
     mesh = shape.to_open3d()
     save_mesh(mesh, args.output)
     if args.save_generators:
@@ -45,13 +45,16 @@ def _predict(args) -> None:
     predictor = Predictor(args.model)
     source = Path(args.input)
     if source.suffix.lower() in (".npy", ".npz"):
+        if args.grid is not None:
+            raise ValueError(f"--grid applies to a mesh INPUT only; the SDF grid {source} has its own size")
         shape = predictor.predict(_load_sdf(source), fallback=not args.no_fallback)
         reference = None
     else:
         from .io import load_mesh
 
         reference = load_mesh(source)
-        shape = predictor.predict_mesh(reference, args.grid, fallback=not args.no_fallback)
+        shape = predictor.predict_from_mesh(reference, 32 if args.grid is None else args.grid,
+                                            fallback=not args.no_fallback)
     mesh = shape.to_open3d()
     save_mesh(mesh, args.output)
     panels = [mesh] if reference is None else [reference, mesh]
@@ -64,7 +67,7 @@ def _reconstruct(args) -> None:
     from .reconstruction import reconstruct
 
     mesh = reconstruct(args.input, args.grid, method=args.method, steps=args.steps, seed=args.seed,
-                       denoise=args.denoise, progress=not args.quiet)
+                       device=args.device, denoise=args.denoise, progress=not args.quiet)
     save_mesh(mesh, args.output)
     _maybe_render(args, [mesh], [f"VoroMesh ({args.method}) {args.grid}^3"])
     _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
@@ -109,7 +112,7 @@ def _eval(args) -> None:
     from .watertight import check_watertight
 
     predicted = load_mesh(args.predicted, weld=False)
-    result = evaluate(predicted, load_mesh(args.ground_truth), n_points=args.n_points, seed=args.seed)
+    result = evaluate(predicted, load_mesh(args.ground_truth), n_samples=args.n_samples, seed=args.seed)
     result["watertight"] = check_watertight(predicted, self_intersection=not args.no_self_intersection).as_dict()
     if args.json:
         print(json.dumps(result, indent=2))
@@ -169,7 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("input", help="SDF grid (.npy, or .npz with array 'sdf'; (g,g,g), negative inside, "
                                        "nodes spanning [-1,1]^3) or a mesh")
     _mesh_output_options(predict)
-    predict.add_argument("--grid", type=int, default=32, help="SDF resolution when INPUT is a mesh, default 32")
+    predict.add_argument("--grid", type=int, help="SDF resolution when INPUT is a mesh, default 32 (an SDF grid "
+                                                  "INPUT has its own)")
     predict.add_argument("--model", help="ONNX model (default: the shipped voro3d/models/voromesh_sdf.onnx)")
     predict.add_argument("--no-fallback", action="store_true", help="trust the network's occupancy everywhere")
     predict.set_defaults(run=_predict)
@@ -180,8 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
     rebuild.add_argument("--grid", type=_grid_or_auto, default="auto",
                          help="grid resolution, or 'auto' (default: from the point spacing, 32-64; 32 for meshes)")
     rebuild.add_argument("--method", choices=("fit", "learned"), default="fit")
-    rebuild.add_argument("--steps", type=int, default=400)
-    rebuild.add_argument("--seed", type=int, default=0)
+    # Fit options default to None: the fit's defaults apply, and --method learned refuses them.
+    rebuild.add_argument("--steps", type=int, help="Adam steps of --method fit, default 400")
+    rebuild.add_argument("--seed", type=int, help="seed of --method fit, default 0")
+    rebuild.add_argument("--device", help="cpu or cuda, for --method fit (default cpu)")
     smoothing = rebuild.add_mutually_exclusive_group()
     smoothing.add_argument("--denoise", dest="denoise", action="store_const", const=True, default=None,
                            help="always smooth the points onto the IMLS surface (default: when noise is detected)")
@@ -206,7 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = commands.add_parser("eval", help="Chamfer, F1, normal consistency and watertightness")
     evaluate.add_argument("predicted")
     evaluate.add_argument("ground_truth")
-    evaluate.add_argument("--n-points", type=int, default=100_000)
+    evaluate.add_argument("--n-samples", "--n-points", dest="n_samples", type=int, default=100_000,
+                          help="surface samples per mesh, default 100000")
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
     evaluate.add_argument("--no-self-intersection", action="store_true",

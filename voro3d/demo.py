@@ -16,7 +16,7 @@ from pathlib import Path
 __all__ = ["main", "run"]
 
 
-def run(out: Path, *, shape: str = "bracket", grid: int = 32, quiet: bool = False) -> dict:
+def run(out: Path, *, shape: str = "bracket", grid: int = 32, progress: bool = False) -> dict:
     """Fit ``shape`` at ``grid``, write meshes, metrics and a picture; return the metrics."""
     from .baselines import marching_cubes
     from .fitting import fit
@@ -32,7 +32,7 @@ def run(out: Path, *, shape: str = "bracket", grid: int = 32, quiet: bool = Fals
     save_mesh(source, out / f"{shape}_input.ply")
 
     start = time.perf_counter()
-    voromesh = fit(source, grid=grid, progress=not quiet).to_open3d()
+    voromesh = fit(source, grid=grid, progress=progress)[0].to_open3d()
     fit_seconds = time.perf_counter() - start
     save_mesh(voromesh, out / f"{shape}_voromesh.ply")
 
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     parser.add_argument("--grid", type=int, default=32)
     parser.add_argument("-q", "--quiet", action="store_true")
     args = parser.parse_args(argv)
-    results = run(args.out, shape=args.shape, grid=args.grid, quiet=args.quiet)
+    results = run(args.out, shape=args.shape, grid=args.grid, progress=not args.quiet)
     print(f"{'method':16s} {'CD x1e5':>9s} {'F1':>6s} {'NC':>6s} watertight")
     for name, r in results.items():
         print(f"{name:16s} {r['chamfer_x1e5']:9.3f} {r['f1']:6.3f} {r['nc']:6.3f} {r['watertight']}")

@@ -21,7 +21,7 @@ from .occupancy import label_cells
 from .queries import InsideOutside
 from .sampling import sample_surface
 
-__all__ = ["FitInfo", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples", "fit_with_info"]
+__all__ = ["FitInfo", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples"]
 
 # Surface samples per grid face, n_samples = SAMPLES_PER_FACE * grid**2 (official code).
 SAMPLES_PER_FACE = 150
@@ -38,7 +38,7 @@ REFRESH_VOXELS = 1.0
 
 @dataclass(frozen=True)
 class FitInfo:
-    """What :func:`fit_with_info` did and where the time went.
+    """What :func:`fit` did and where the time went.
 
     Attributes
     ----------
@@ -56,7 +56,7 @@ class FitInfo:
     sampling_seconds, init_seconds, optimisation_seconds, occupancy_seconds, total_seconds : float
         Wall-clock time of: surface sampling (and setting up the inside test); initial
         generators and the first candidate search;
-        the optimisation loop (later searches included); cell occupancy; all of :func:`fit_with_info`.
+        the optimisation loop (later searches included); cell occupancy; all of :func:`fit`.
     """
 
     n_samples: int
@@ -71,29 +71,10 @@ class FitInfo:
     total_seconds: float
 
 
-def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
-        milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
-        k: int = DEFAULT_K, n_samples: int | None = None, seed: int = 0, device: str = "cpu",
-        allow_open: bool = False, progress: bool = True) -> VoroMesh:
-    """Fit a VoroMesh to a triangle mesh by minimising VoroLoss.
-
-    The same fit as :func:`fit_with_info`, which documents the parameters, without the report.
-
-    Returns
-    -------
-    VoroMesh
-        Generators ``(n, 3) float64`` in the input mesh's units, with their occupancy.
-    """
-    return fit_with_info(mesh, grid, steps=steps, lr=lr, milestones=milestones, gamma=gamma,
-                         batch_fraction=batch_fraction, k=k, n_samples=n_samples, seed=seed,
-                         device=device, allow_open=allow_open, progress=progress)[0]
-
-
-def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
-                  milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
-                  k: int = DEFAULT_K, n_samples: int | None = None, seed: int = 0,
-                  device: str = "cpu", allow_open: bool = False,
-                  progress: bool = True) -> tuple[VoroMesh, FitInfo]:
+def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 200, 250),
+        gamma: float = 0.5, batch_fraction: float = 0.2, k: int = DEFAULT_K, n_samples: int | None = None,
+        seed: int = 0, device: str = "cpu", allow_open: bool = False,
+        progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to a triangle mesh, and report how the fit went.
 
     The mesh is mapped to the fit frame (:func:`voro3d.io.fit_frame`: bounding box centred,
@@ -133,13 +114,15 @@ def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
         Accept a mesh with boundary edges; inside is then decided by winding number
         (see :class:`voro3d.queries.InsideOutside`).
     progress : bool
-        Show a tqdm progress bar over the steps.
+        Show a tqdm progress bar over the steps (off by default, like every voro3d function).
 
     Returns
     -------
     voromesh : VoroMesh
         Generators ``(n, 3) float64`` in the input mesh's units, with their occupancy.
     info : FitInfo
+        The loss of every step and where the time went; always returned, so the two values
+        unpack the same way on every call (``shape, _ = fit(mesh)`` when only the shape matters).
 
     Raises
     ------
@@ -176,11 +159,11 @@ def fit_with_info(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005,
                        progress=progress, _started=start)
 
 
-def fit_samples(samples, inside, grid: int = 32, *, frame=None, steps: int = 400, lr: float = 0.005,
+def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr: float = 0.005,
                 milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
-                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu", progress: bool = True,
+                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu", progress: bool = False,
                 _started: float | None = None) -> tuple[VoroMesh, FitInfo]:
-    """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit_with_info`.
+    """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit`.
 
     Parameters
     ----------
@@ -190,7 +173,7 @@ def fit_samples(samples, inside, grid: int = 32, *, frame=None, steps: int = 400
         Maps (q, 3) float64 fit-frame points to (q,) bool, True inside the shape (a mesh's
         :class:`voro3d.queries.InsideOutside`, a point cloud's winding number, ...).
     grid, steps, lr, milestones, gamma, batch_fraction, k, seed, device, progress
-        As in :func:`fit_with_info`.
+        As in :func:`fit`.
     frame : voro3d.io.NormalizationFrame, optional
         The generators are mapped back through ``frame.invert``; None keeps the fit frame.
 

@@ -31,7 +31,7 @@ from ._validate import as_sdf_grid
 from .extract import VoroMesh
 
 __all__ = ["BAND", "DEFAULT_MODEL", "INPUT_NAMES", "NEAR", "OUTPUT_NAMES", "NetworkInput", "Predictor", "assemble",
-           "check_sdf", "fixed_generators", "network_input", "predict", "predict_mesh", "sdf_at"]
+           "check_sdf", "fixed_generators", "network_input", "predict", "predict_from_mesh", "sdf_at"]
 
 # The shipped network is package data (its card, config and loss curve are in the repository's
 # models/). voro3d has a compiled extension, so it is never imported from a zip archive and
@@ -186,7 +186,7 @@ class Predictor:
 
     Parameters
     ----------
-    model_path : str or os.PathLike, optional
+    model : str or os.PathLike, optional
         An ``.onnx`` file from :func:`voro3d.learn.export.export_onnx`; default the shipped
         model, :data:`DEFAULT_MODEL` (package data ``voro3d/models/voromesh_sdf.onnx``).
     threads : int, optional, keyword-only
@@ -195,16 +195,16 @@ class Predictor:
     Raises
     ------
     FileNotFoundError
-        No file at ``model_path``.
+        No file at ``model``.
     ValueError
         The file is not a loadable ONNX model with inputs ``sdf_voxels, nodes`` and outputs
         ``offsets, logits``.
     """
 
-    def __init__(self, model_path=None, *, threads: int | None = None):
+    def __init__(self, model=None, *, threads: int | None = None):
         import onnxruntime as ort
 
-        path = Path(DEFAULT_MODEL if model_path is None else model_path)
+        path = Path(DEFAULT_MODEL if model is None else model)
         if not path.is_file():
             raise FileNotFoundError(f"no ONNX model at {path}")
         options = ort.SessionOptions()
@@ -260,8 +260,11 @@ class Predictor:
         net_input, offsets, logits = self._run(sdf)
         return assemble(sdf, net_input, offsets, logits, near=self.near, fallback=fallback)
 
-    def predict_mesh(self, mesh, grid: int = 32, *, fallback: bool = True) -> VoroMesh:
+    def predict_from_mesh(self, mesh, grid: int = 32, *, fallback: bool = True) -> VoroMesh:
         """Learned VoroMesh of a closed triangle mesh, in the mesh's own units.
+
+        Like :func:`voro3d.fit`, a mesh in and a VoroMesh out (``.to_open3d()`` gives the
+        watertight mesh; :func:`voro3d.reconstruct` with ``method="learned"`` returns it directly).
 
         The mesh is put in its fit frame (:func:`voro3d.io.fit_frame`), its SDF is sampled on a
         ``grid^3`` lattice (:func:`voro3d.queries.sdf_grid`), and the predicted generators are
@@ -311,6 +314,6 @@ def predict(sdf, *, model=None, fallback: bool = True) -> VoroMesh:
     return _predictor(model).predict(sdf, fallback=fallback)
 
 
-def predict_mesh(mesh, grid: int = 32, *, model=None, fallback: bool = True) -> VoroMesh:
-    """:meth:`Predictor.predict_mesh` with ``model`` as in :func:`predict`."""
-    return _predictor(model).predict_mesh(mesh, grid, fallback=fallback)
+def predict_from_mesh(mesh, grid: int = 32, *, model=None, fallback: bool = True) -> VoroMesh:
+    """:meth:`Predictor.predict_from_mesh` with ``model`` as in :func:`predict`."""
+    return _predictor(model).predict_from_mesh(mesh, grid, fallback=fallback)

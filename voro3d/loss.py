@@ -29,7 +29,7 @@ __all__ = ["DEFAULT_K", "PAIR_BLOCK", "bisector_distance", "bisector_pairs", "kn
 DEFAULT_K = 11
 
 
-def knn_candidates(samples, generators, k: int = DEFAULT_K) -> np.ndarray:
+def knn_candidates(samples, generators, *, k: int = DEFAULT_K) -> np.ndarray:
     """Indices of the ``k`` generators nearest to each sample, nearest first.
 
     Open3D's KD-tree (nanoflann, float32, all cores), which measured 1.2-1.6 times faster than
@@ -83,7 +83,7 @@ def nearest_indices(points: np.ndarray, sites: np.ndarray, k: int) -> np.ndarray
     return indices.numpy()
 
 
-def voroloss(samples, generators, k: int = DEFAULT_K, candidates=None) -> torch.Tensor:
+def voroloss(samples, generators, *, k: int | None = None, candidates=None) -> torch.Tensor:
     """Mean squared distance from samples to the boundary of the Voronoi cell holding each one.
 
     Parameters
@@ -94,9 +94,9 @@ def voroloss(samples, generators, k: int = DEFAULT_K, candidates=None) -> torch.
     generators : (n, 3) float32 or float64 torch.Tensor
         Distinct generator positions, ``n >= 2``; the loss is differentiable in them (through
         both the nearest generator ``q_i`` and the bisector's other generator ``q_j``).
-    k : int
-        Generators searched per sample (the nearest plus ``k - 1`` others), see ``DEFAULT_K``.
-        Ignored when ``candidates`` is given.
+    k : int, optional
+        Generators searched per sample (the nearest plus ``k - 1`` others); default ``DEFAULT_K``.
+        Not with ``candidates``, which fix the generators searched.
     candidates : (m, c) int array or torch.Tensor, optional
         Generator indices to search per sample, ``c >= 2``, e.g. from :func:`knn_candidates`
         on earlier generator positions. The nearest generator is re-ranked among them, so they
@@ -113,10 +113,13 @@ def voroloss(samples, generators, k: int = DEFAULT_K, candidates=None) -> torch.
     Raises
     ------
     ValueError
-        Bad shapes or dtypes, NaN/inf, or candidate indices outside ``[0, n)``.
+        Bad shapes or dtypes, NaN/inf, candidate indices outside ``[0, n)``, or both ``k`` and
+        ``candidates``.
     TypeError
         ``generators`` is not a torch tensor.
     """
+    if k is not None and candidates is not None:
+        raise ValueError("give k or candidates, not both: candidates fix the generators searched")
     if not isinstance(generators, torch.Tensor):
         raise TypeError(f"generators must be a torch.Tensor, got {type(generators).__name__}")
     if generators.dtype not in (torch.float32, torch.float64) or generators.ndim != 2 or generators.shape[1] != 3:
@@ -138,7 +141,7 @@ def voroloss(samples, generators, k: int = DEFAULT_K, candidates=None) -> torch.
     if samples.shape[0] == 0:
         raise ValueError("samples must hold at least 1 point, got 0")
     if candidates is None:
-        candidates = knn_candidates(samples.detach(), generators.detach(), k)
+        candidates = knn_candidates(samples.detach(), generators.detach(), k=DEFAULT_K if k is None else k)
     candidates = torch.as_tensor(candidates, device=generators.device)
     if candidates.dtype.is_floating_point or candidates.dtype == torch.bool or candidates.ndim != 2:
         raise ValueError("candidates must be an integer array of shape (m, c), "

@@ -19,14 +19,14 @@ __all__ = ["CHAMFER_FACTOR", "evaluate"]
 CHAMFER_FACTOR = 1e5
 
 
-def evaluate(pred, gt, *, n_points: int = 100_000, seed: int = 0, delta: float = 0.003) -> dict:
+def evaluate(pred, gt, *, n_samples: int = 100_000, seed: int = 0, delta: float = 0.003) -> dict:
     """Compare a predicted surface with the ground truth.
 
     Parameters
     ----------
     pred, gt : open3d.geometry.TriangleMesh or (vertices, triangles)
         Any units; both are mapped by the ground truth's NDC frame (:func:`voro3d.io.ndc_frame`).
-    n_points : int, keyword-only
+    n_samples : int, keyword-only
         Surface samples per mesh.
     seed : int, keyword-only
         Seeds the two samplings (ground truth and prediction draw independent streams), so the
@@ -48,20 +48,20 @@ def evaluate(pred, gt, *, n_points: int = 100_000, seed: int = 0, delta: float =
     Raises
     ------
     ValueError
-        A mesh without triangles or with zero area, ``n_points < 1``, ``delta`` not positive.
+        A mesh without triangles or with zero area, ``n_samples < 1``, ``delta`` not positive.
     """
     from scipy.spatial import cKDTree
 
     pred_vertices, pred_triangles = mesh_arrays(pred, "pred")
     gt_vertices, gt_triangles = mesh_arrays(gt, "gt")
-    n_points = positive_int(n_points, "n_points")
+    n_samples = positive_int(n_samples, "n_samples")
     if not np.isfinite(delta) or delta <= 0:
         raise ValueError(f"delta must be finite and > 0, got {delta}")
 
     frame = ndc_frame(gt_vertices[np.unique(gt_triangles)])
     gt_seed, pred_seed = np.random.SeedSequence(seed).generate_state(2)
-    gt_points, gt_normals = sample_surface((frame.apply(gt_vertices), gt_triangles), n_points, seed=int(gt_seed))
-    pred_points, pred_normals = sample_surface((frame.apply(pred_vertices), pred_triangles), n_points,
+    gt_points, gt_normals = sample_surface((frame.apply(gt_vertices), gt_triangles), n_samples, seed=int(gt_seed))
+    pred_points, pred_normals = sample_surface((frame.apply(pred_vertices), pred_triangles), n_samples,
                                                seed=int(pred_seed))
 
     to_gt, nearest_gt = cKDTree(gt_points).query(pred_points, k=1, workers=-1)

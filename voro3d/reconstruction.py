@@ -11,18 +11,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import as_points, positive_int
-from .pointcloud.reconstruct import MIN_POINTS
+from ._validate import as_points, method_options, positive_int
+from .pointcloud.reconstruct import METHODS, MIN_POINTS
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
-METHODS = ("fit", "learned")
 # Meshes have no spacing to choose a grid from: grid="auto" is this.
 MESH_AUTO_GRID = 32
 
 
-def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int = 400, seed: int = 0,
-                device: str = "cpu", denoise=None, progress: bool = False):
+def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
+                device: str | None = None, denoise=None, progress: bool = False):
     """Watertight VoroMesh surface of a point cloud or mesh.
 
     Parameters
@@ -33,19 +32,25 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int = 400,
         Point clouds use their normals when they have them (a few zero or NaN ones are
         repaired from their neighbours); otherwise normals are estimated and oriented.
     grid : int or "auto"
-        Grid resolution ``g`` (``g^3`` nodes over the shape's bounding box), at least 4.
-        ``"auto"``: for a cloud, voxels about 2.5 point spacings wide, between 32 and 64
-        (:func:`voro3d.pointcloud.auto_grid`); for a mesh, 32. A grid finer than a cloud's
-        spacing supports (voxels narrower than the spacing) works and warns. Time grows about
-        as ``g^2``; 128 is practical, 256 slow.
+        Grid resolution ``g`` (``g^3`` nodes over the shape's bounding box), at least 4, no
+        upper limit. ``"auto"``: for a mesh, 32 (:data:`MESH_AUTO_GRID`: a mesh has no point
+        spacing to go by); for a cloud, voxels about 2.5 median point spacings wide, clipped to
+        32-64 (:func:`voro3d.pointcloud.auto_grid`). A cloud's grid finer than
+        :func:`voro3d.pointcloud.max_supported_grid` (voxels narrower than one spacing) works
+        and warns: the surface between the points then comes from the smooth target alone.
+        Time and memory grow about as ``g^2`` (``150 g^2`` surface samples): 128 is practical,
+        256 slow. The learned model was trained at 32 and 64.
     method : {"fit", "learned"}
         Direct optimisation (seconds) or the shipped ONNX network (fast, needs no torch).
-    steps, seed, device, progress
-        Passed to the fit (``method="fit"``).
+    steps, seed, device : int, int, str, optional
+        The fit's Adam steps, seed and torch device (defaults those of :func:`voro3d.fit`: 400,
+        0, ``"cpu"``). ``method="learned"`` uses none of them and refuses them.
     denoise : bool or None
         Point clouds: the smoothing pass that moves noisy points onto the smooth surface. None
         (default) turns it on when the estimated noise exceeds a tenth of the point spacing;
         True or False force it. Meshes: must stay None.
+    progress : bool
+        Show a progress bar over the fit's steps (the learned method has no loop to show).
 
     Returns
     -------
@@ -58,11 +63,13 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int = 400,
     ValueError
         Empty or too small cloud (< 100 points), NaN/inf points, all points coplanar, more than
         1% of the given normals unusable, a cloud of outliers only (it fills a volume), normals
-        not estimable, an unknown method, ``denoise`` given for a mesh, or a non-watertight
-        input mesh.
+        not estimable, an unknown method, an option the method does not use (``steps``, ``seed``
+        or ``device`` with ``method="learned"``), ``denoise`` given for a mesh, or a
+        non-watertight input mesh.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
     if not (isinstance(grid, str) and grid == "auto"):
         if isinstance(grid, str):
             raise ValueError(f"grid must be an int >= 4 or 'auto', got {grid!r}")
@@ -75,15 +82,15 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int = 400,
         if method == "fit":
             from .fitting import fit
 
-            return fit(data, grid, steps=steps, seed=seed, device=device, progress=progress).to_open3d()
-        from .infer import predict_mesh
+            return fit(data, grid, progress=progress, **fit_options)[0].to_open3d()
+        from .infer import predict_from_mesh
 
-        return predict_mesh(data, grid).to_open3d()
+        return predict_from_mesh(data, grid).to_open3d()
     from .pointcloud import reconstruct_points, transfer_colors
 
     points, normals, colors = data
-    shape, _ = reconstruct_points(points, normals, grid=grid, method=method, steps=steps, seed=seed, device=device,
-                                  denoise=denoise, progress=progress)
+    shape, _ = reconstruct_points(points, normals, grid=grid, method=method, denoise=denoise, progress=progress,
+                                  **fit_options)
     mesh = shape.to_open3d()
     if colors is not None:
         import open3d as o3d
@@ -95,22 +102,23 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int = 400,
 class VoroMeshStage:
     """A pipeline stage: ``stage(geometry) -> TriangleMesh``, set up once, called many times.
 
-    Parameters are those of :func:`reconstruct`. With ``method="learned"`` the ONNX session is
-    loaded on the first call and kept.
+    Parameters are those of :func:`reconstruct`, checked here, once. With ``method="learned"``
+    the ONNX session is loaded on the first call and kept.
 
     Examples
     --------
     >>> steps = [lambda p: p.voxel_down_sample(0.01), VoroMeshStage(grid=64)]  # doctest: +SKIP
     """
 
-    def __init__(self, grid="auto", *, method: str = "fit", steps: int = 400, seed: int = 0,
-                 device: str = "cpu", denoise=None, progress: bool = False):
+    def __init__(self, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
+                 device: str | None = None, denoise=None, progress: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
         if grid != "auto":
             grid = positive_int(grid, "grid", minimum=4)
-        self.options = dict(grid=grid, method=method, steps=steps, seed=seed, device=device,
-                            denoise=None if denoise is None else bool(denoise), progress=progress)
+        self.options = dict(grid=grid, method=method, denoise=None if denoise is None else bool(denoise),
+                            progress=progress, **fit_options)
 
     def __call__(self, geometry):
         return reconstruct(geometry, **self.options)

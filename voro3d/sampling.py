@@ -9,7 +9,7 @@ from .io import mesh_arrays
 __all__ = ["sample_surface", "grid_nodes"]
 
 
-def sample_surface(mesh, n: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def sample_surface(mesh, n_samples: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Uniform area-weighted samples on a triangle mesh, with the normals of their faces.
 
     Faces are drawn with probability proportional to their area, then a point uniformly inside the
@@ -18,25 +18,25 @@ def sample_surface(mesh, n: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarr
     Parameters
     ----------
     mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
-    n : int
+    n_samples : int
         Number of samples, ``>= 1``.
     seed : int
         Seed of ``numpy.random.default_rng``; the same seed and mesh give the same samples.
 
     Returns
     -------
-    points : (n, 3) float64
+    points : (n_samples, 3) float64
         In the mesh's units.
-    normals : (n, 3) float64
+    normals : (n_samples, 3) float64
         Unit face normals (right-hand rule over the triangle's vertex order).
 
     Raises
     ------
     ValueError
-        ``mesh`` has no triangles or zero total area; ``n < 1``.
+        ``mesh`` has no triangles or zero total area; ``n_samples < 1``.
     """
     vertices, triangles = mesh_arrays(mesh)
-    n = positive_int(n, "n")
+    n = positive_int(n_samples, "n_samples")
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
     cross = np.cross(b - a, c - a)
     double_area = np.linalg.norm(cross, axis=1)

@@ -40,8 +40,10 @@ class ShapeTask:
         Absolute paths of the input mesh and of the mesh to write.
     method : str
         ``"fit"`` or ``"learned"``.
-    grid, steps, seed : int
-        As for :func:`voro3d.fitting.fit` (``steps`` unused by ``"learned"``; ``seed`` also seeds the metrics).
+    grid, seed : int
+        As for :func:`voro3d.fitting.fit` (``seed`` also seeds the metrics).
+    steps : int or None
+        Adam steps of ``"fit"``; None for ``"learned"``, which has none.
     model : str or None
         Absolute path of the ONNX model for ``"learned"``.
     threads : int
@@ -56,7 +58,7 @@ class ShapeTask:
     output: str
     method: str
     grid: int
-    steps: int
+    steps: int | None
     seed: int
     model: str | None
     threads: int

@@ -10,7 +10,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from .._system import available_cpus
-from .._validate import positive_int
+from .._validate import method_options, positive_int
 from ..io import MESH_SUFFIXES
 from .local import run_local
 from .plan import (ENGINES, EXIT_INTERRUPTED, METHODS, RESULTS_NAME, BatchSummary, ShapeTask, _complete, _fsync,
@@ -19,12 +19,16 @@ from .ray_engine import run_ray
 
 __all__ = ["add_batch_parser", "run_batch"]
 
+# voro3d.fit's default steps, written out because the batch's own process never imports torch
+# (fitting's module) to read it; tests/test_api.py checks that the two agree.
+FIT_STEPS = 400
 
-def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, steps: int = 400,
+
+def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, steps: int | None = None,
               seed: int = 0, model=None, workers: int | None = None, threads: int = 1, engine: str = "local",
               ray_address: str | None = None, evaluate: bool = False, timeout: float | None = None,
               memory_limit_mb: int | None = None, suffix: str = ".ply",
-              progress: bool = True) -> BatchSummary:
+              progress: bool = False) -> BatchSummary:
     """Reconstruct every mesh under ``input_dir`` into ``output_dir``, resumably (:mod:`voro3d.batch`).
 
     Parameters
@@ -37,12 +41,13 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         its ONNX session loaded once per worker process).
     grid : int
         Grid nodes per axis, ``>= 2`` for ``"fit"``, ``>= 4`` for ``"learned"``.
-    steps : int
-        Adam steps of ``"fit"``.
+    steps : int, optional
+        Adam steps of ``"fit"``, default 400 (:func:`voro3d.fit`'s); refused with ``"learned"``.
     seed : int
         Seeds the fit and the metrics' samples; the same seed gives the same output bytes.
     model : str or os.PathLike, optional
         ONNX model of ``"learned"``; default the shipped one (:data:`voro3d.infer.DEFAULT_MODEL`).
+        Refused with ``"fit"``.
     workers : int, optional
         Shapes processed at once; default the CPUs this process may use divided by ``threads``.
         Local workers belong to the caller's session, so where Linux shares CPU between sessions
@@ -86,7 +91,8 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     Raises
     ------
     ValueError
-        A bad argument (named in the message), no mesh file under ``input_dir``, two inputs
+        A bad argument (named in the message), an option the method does not use (``steps``
+        with ``"learned"``, ``model`` with ``"fit"``), no mesh file under ``input_dir``, two inputs
         mapping to one output, another batch writing to ``output_dir``, Ray not installed, or a
         worker unable to load the model.
     FileNotFoundError
@@ -101,8 +107,10 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
     if ray_address is not None and engine != "ray":
         raise ValueError(f"ray_address is only used with engine='ray', got engine={engine!r}")
+    method_options(method, "fit", steps=steps)
+    method_options(method, "learned", model=model)
     grid = positive_int(grid, "grid", minimum=2 if method == "fit" else 4)
-    steps = positive_int(steps, "steps")
+    steps = positive_int(FIT_STEPS if steps is None else steps, "steps") if method == "fit" else None
     seed = positive_int(seed, "seed", minimum=0)
     threads = positive_int(threads, "threads")
     cpus = available_cpus()
@@ -133,11 +141,9 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         if not model.is_file():
             raise FileNotFoundError(f"no ONNX model at {model}")
         model = str(model)
-    else:
-        model = None
 
     jobs = _plan(input_dir, output_dir, suffix)
-    settings = {"method": method, "grid": grid, "steps": steps if method == "fit" else None, "seed": seed,
+    settings = {"method": method, "grid": grid, "steps": steps, "seed": seed,
                 "model": model, "eval": bool(evaluate), "format": suffix}
     output_dir.mkdir(parents=True, exist_ok=True)
     with _ResultsLog(output_dir / RESULTS_NAME) as log:
@@ -212,7 +218,7 @@ def add_batch_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--method", choices=METHODS, default="fit",
                         help="direct fit or learned inference (default fit)")
     parser.add_argument("--grid", type=int, default=32, help="grid resolution g (g^3 nodes), default 32")
-    parser.add_argument("--steps", type=int, default=400, help="Adam steps of --method fit, default 400")
+    parser.add_argument("--steps", type=int, help="Adam steps of --method fit, default 400")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--model", help="ONNX model of --method learned (default: the shipped one)")
     parser.add_argument("--workers", type=int, help="shapes at once (default: the available CPUs / --threads)")

@@ -118,10 +118,10 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
     corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
     cell = VoroMesh(np.vstack([np.zeros(3), corners]), np.arange(9) == 0).to_open3d()
     check_watertight(cell, self_intersection=False)
-    evaluate(cell, box, n_points=64)
+    evaluate(cell, box, n_samples=64)
 
 
-def _reconstruct(source, method: str, *, grid: int, steps: int, seed: int, model: str | None, threads: int):
+def _reconstruct(source, method: str, *, grid: int, steps: int | None, seed: int, model: str | None, threads: int):
     """The VoroMesh of ``source`` by ``method``."""
     if method == "fit":
         from ..fitting import fit
@@ -129,8 +129,8 @@ def _reconstruct(source, method: str, *, grid: int, steps: int, seed: int, model
         import torch
 
         torch.set_num_threads(threads)
-        return fit(source, grid, steps=steps, seed=seed, progress=False)
-    return _predictor(model, threads).predict_mesh(source, grid)
+        return fit(source, grid, steps=steps, seed=seed)[0]
+    return _predictor(model, threads).predict_from_mesh(source, grid)
 
 
 def _proc_status_kb(field: str, pid="self") -> int | None:

@@ -244,7 +244,7 @@ def _shape_record(vertices, triangles, grids, n_samples, seed) -> dict:
     return record
 
 
-def build_dataset(out_dir, n_shapes: int, grid=(32, 64), seed: int = 0, *, n_samples: int = 50_000,
+def build_dataset(out_dir, n_shapes: int, *, grid=(32, 64), seed: int = 0, n_samples: int = 50_000,
                   mesh_dir=None, n_organic: int = 0) -> list[Path]:
     """Generate (or reuse) the cached training set in ``out_dir``.
 
@@ -260,9 +260,9 @@ def build_dataset(out_dir, n_shapes: int, grid=(32, 64), seed: int = 0, *, n_sam
         Created if needed; holds ``shape_<i>.npz`` files and ``index.json`` (the spec).
     n_shapes : int
         Generated shapes, ``>= 0``.
-    grid : int or sequence of int
+    grid : int or sequence of int, keyword-only
         SDF grid sizes to cache (each ``>= 4``).
-    seed : int
+    seed : int, keyword-only
         Master seed.
     n_samples : int, keyword-only
         Surface samples per shape.

@@ -190,7 +190,7 @@ class _Validation:
                         for i in self.detail}
         self.mc = {}
         for grid in self.grids:
-            scores = [evaluate(marching_cubes(self.shapes[i][f"sdf_{grid}"]), self._gt(i), n_points=cd_points)
+            scores = [evaluate(marching_cubes(self.shapes[i][f"sdf_{grid}"]), self._gt(i), n_samples=cd_points)
                       for i in self.detail]
             self.mc[grid] = float(np.mean([s["chamfer_x1e5"] for s in scores]))
 
@@ -222,7 +222,7 @@ class _Validation:
                 total += labels.size
                 voro = assemble(sdf, net_input, offsets.numpy(), logits.numpy(), near=near, fallback=True,
                                 band=band)
-                chamfers.append(evaluate(voro.to_open3d(), self._gt(i), n_points=self.cd_points)["chamfer_x1e5"])
+                chamfers.append(evaluate(voro.to_open3d(), self._gt(i), n_samples=self.cd_points)["chamfer_x1e5"])
             result[f"val_voroloss_{grid}"] = float(np.mean(losses))
             result[f"val_occupancy_accuracy_{grid}"] = correct / max(total, 1)
             result[f"val_chamfer_x1e5_{grid}"] = float(np.mean(chamfers)) if chamfers else float("nan")
@@ -348,11 +348,11 @@ def train_main(config_path) -> Path:
     run_dir.mkdir(parents=True, exist_ok=True)
     data = config["data"]
     grids = [int(g) for g in data["grids"]]
-    train = ShapeSet(build_dataset(data["train_dir"], data["n_train"], grids, data["train_seed"],
+    train = ShapeSet(build_dataset(data["train_dir"], data["n_train"], grid=grids, seed=data["train_seed"],
                                    n_samples=data["n_samples"], mesh_dir=data["mesh_dir"],
                                    n_organic=data["n_organic"]))
-    validation = _Validation(ShapeSet(build_dataset(data["val_dir"], data["n_val"], grids, data["val_seed"],
-                                                    n_samples=data["n_samples"])),
+    validation = _Validation(ShapeSet(build_dataset(data["val_dir"], data["n_val"], grid=grids,
+                                                    seed=data["val_seed"], n_samples=data["n_samples"])),
                              grids, config["validation"]["n_detail"], config["validation"]["cd_points"])
 
     model = VoroNet(**config["model"])

@@ -21,6 +21,8 @@ from .surface import imls, target_surface
 __all__ = ["PointCloudInfo", "reconstruct_points", "auto_grid", "max_supported_grid", "transfer_colors"]
 
 MIN_POINTS = 100
+# The VoroLoss fit of the target samples, or the learned model on the target's SDF grid.
+METHODS = ("fit", "learned")
 # Kernel width of a point: this many local spacings, or this many noise standard deviations.
 # Sparse clean clouds (no noise, under MAX_TRUSTED_OUTLIERS of strays) get the narrower width:
 # on 5k-point clouds of the bunny and fandisk it cut the CD 2-4 times against 1.5 spacings,
@@ -93,8 +95,8 @@ def auto_grid(spacing: float) -> int:
     return int(np.clip(round(2.0 / (AUTO_SPACINGS_PER_VOXEL * spacing)) + 1, *AUTO_GRID_RANGE))
 
 
-def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit", steps: int = 400, seed: int = 0,
-                       device: str = "cpu", denoise=None, progress: bool = False):
+def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit", steps: int | None = None,
+                       seed: int | None = None, device: str | None = None, denoise=None, progress: bool = False):
     """VoroMesh of a point cloud, through a smooth target surface.
 
     1. Outliers out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
@@ -114,11 +116,14 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     normals : (n, 3) float64 or None
         Unit outward normals, or None to estimate them.
     grid : int or "auto"
-        VoroMesh grid; ``"auto"`` picks it from the spacing (:func:`auto_grid`). A grid finer
-        than :func:`max_supported_grid` works but warns.
+        VoroMesh grid, at least 4; ``"auto"`` picks it from the spacing (:func:`auto_grid`:
+        32-64). A grid finer than :func:`max_supported_grid` works but warns.
     method : {"fit", "learned"}
         VoroLoss fit, or the ONNX network on the target's signed distance grid.
-    steps, seed, device, progress
+    steps, seed, device : int, int, str, optional
+        As in :func:`voro3d.fit` (defaults 400, 0, ``"cpu"``); refused with ``method="learned"``,
+        which uses none of them.
+    progress : bool
         As in :func:`voro3d.fit`.
     denoise : bool or None
         The smoothing pass of step 3: None decides from the estimated noise (on above
@@ -133,12 +138,17 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     Raises
     ------
     ValueError
-        Too few points left after outlier removal, a cloud that fills a volume, or normals
-        that cannot be estimated.
+        Too few points left after outlier removal, a cloud that fills a volume, normals that
+        cannot be estimated, an unknown method, or an option the method does not use.
     """
     from scipy.spatial import cKDTree
 
+    from .._validate import method_options
     from ..io import fit_frame
+
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
 
     seconds = {}
     start = time.perf_counter()
@@ -199,11 +209,10 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     else:
         from ..fitting import fit_samples
 
-        samples = _fit_samples(target, framed, stats.spacing, grid, seed=seed)
+        samples = _fit_samples(target, framed, stats.spacing, grid, seed=fit_options.get("seed", 0))
         seconds["samples"] = time.perf_counter() - start
         start = time.perf_counter()
-        shape, _ = fit_samples(samples, target.inside, grid, frame=frame, steps=steps, seed=seed, device=device,
-                               progress=progress)
+        shape, _ = fit_samples(samples, target.inside, grid, frame=frame, progress=progress, **fit_options)
         shape = _drop_stray_cells(shape)
         seconds["fit"] = time.perf_counter() - start
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
