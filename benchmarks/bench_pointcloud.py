@@ -51,6 +51,8 @@ CONDITIONS = {
 }
 COLOURED = "clean 20k"
 PICTURED = ("organic_bunny.off", "cad_fandisk.obj")
+# Seconds given to Open3D's normal orientation before the baseline falls back to ours.
+ORIENT_TIMEOUT = 120
 PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing")
 
 
@@ -88,8 +90,40 @@ def position_colours(points, low, high):
     return np.clip((points - low) / (high - low), 0.0, 1.0)
 
 
+def _tangent_plane_normals(points, normals, queue):
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.normals = o3d.utility.Vector3dVector(normals)
+    cloud.orient_normals_consistent_tangent_plane(30)
+    queue.put(np.asarray(cloud.normals))
+
+
+def _orient(points, normals):
+    """Open3D's tangent-plane orientation in a child process, given ORIENT_TIMEOUT seconds (it took
+    13-20 minutes on some 100k-point dev clouds). Past that, the normals take the signs of
+    :func:`voro3d.pointcloud.estimate_normals` instead: the baseline then gets our orientation."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_tangent_plane_normals, args=(points, normals, queue))
+    child.start()
+    try:
+        return queue.get(timeout=ORIENT_TIMEOUT), "tangent plane"
+    except Exception:  # queue.Empty: timed out (or the child died)
+        from voro3d.io import fit_frame
+        from voro3d.pointcloud import estimate_normals
+
+        ours = estimate_normals(fit_frame(points).apply(points))
+        return normals * np.sign(np.einsum("ij,ij->i", normals, ours) + 1e-300)[:, None], "voro3d (timeout)"
+    finally:
+        child.kill()
+        child.join()
+
+
 def poisson(points, colours=None):
-    """Open3D's pipeline; returns {depth: (mesh, seconds)}."""
+    """Open3D's pipeline; returns ({depth: (mesh, seconds)}, how the normals were oriented)."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
@@ -98,7 +132,8 @@ def poisson(points, colours=None):
     start = time.perf_counter()
     cloud, _ = cloud.remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(30))
-    cloud.orient_normals_consistent_tangent_plane(30)
+    oriented, orientation = _orient(np.asarray(cloud.points), np.asarray(cloud.normals))
+    cloud.normals = o3d.utility.Vector3dVector(oriented)
     prepared = time.perf_counter() - start
     meshes = {}
     for depth in (7, 8):
@@ -106,7 +141,7 @@ def poisson(points, colours=None):
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth)
         meshes[depth] = (mesh, prepared + time.perf_counter() - start)
-    return meshes
+    return meshes, orientation
 
 
 def _pieces(mesh) -> int:
@@ -159,10 +194,11 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
         meshes = {}
     if not with_poisson:
         return dict(row, poisson={})
-    tried = {depth: (evaluate(mesh, source), mesh, seconds) for depth, (mesh, seconds) in poisson(points, colours).items()}
+    meshes_by_depth, orientation = poisson(points, colours)
+    tried = {depth: (evaluate(mesh, source), mesh, seconds) for depth, (mesh, seconds) in meshes_by_depth.items()}
     depth = min(tried, key=lambda d: tried[d][0]["chamfer_x1e5"])
     scores, mesh, seconds = tried[depth]
-    row["poisson"] = dict(scores, seconds=seconds, depth=depth, pieces=_pieces(mesh),
+    row["poisson"] = dict(scores, seconds=seconds, depth=depth, pieces=_pieces(mesh), orientation=orientation,
                           closed=bool(mesh.is_edge_manifold() and mesh.is_watertight()))
     if colours is not None:
         row["poisson"]["colour_error"] = _colour_error(mesh, source, low, high)
@@ -205,7 +241,7 @@ def run_scans(folder: Path, grid, picture_dir):
             save_mesh(mesh, picture_dir / f"scan_{path.stem}_voromesh.ply")
         except ValueError as error:
             row["voromesh"] = dict(error=str(error))
-        tried = poisson(points)
+        tried, _ = poisson(points)
         scored = {d: _scan_scores(m, points, normals, usable, diagonal) for d, (m, _) in tried.items()}
         depth = min(scored, key=lambda d: scored[d]["distance"])
         row["poisson"] = dict(scored[depth], depth=depth, seconds=tried[depth][1], pieces=_pieces(tried[depth][0]))
@@ -240,7 +276,8 @@ def write(out: Path, meta, rows, scans):
              f"{meta['load_before']} before, {meta.get('load_after', '?')} after)", "",
              f"Clouds without normals sampled from {len({r['shape'] for r in rows})} dev meshes. VoroMesh: "
              f"`voro3d.pointcloud.reconstruct_points(points, grid={meta['grid']})`. Poisson: Open3D statistical "
-             "outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation (30), screened Poisson "
+             "outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation (30; after "
+             f"{ORIENT_TIMEOUT} s the signs of voro3d's normals instead, marked * per shape), screened Poisson "
              "depth 7 or 8, the lower CD per shape. CD x1e5, F1 at 0.003, NC against the mesh (NDC frame, 100k "
              "points). *closed*: VoroMesh meshes checked closed, manifold, oriented, no crossing triangles (exact); "
              "*one piece*: share of the outputs in one connected piece (every input is one object).", "",
@@ -313,7 +350,8 @@ def write(out: Path, meta, rows, scans):
         if "error" in v:
             lines.append(f"| {r['shape']} | {r['condition']} | {v['error']} | | | | | | |")
             continue
-        poisson_cell = f"{p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / {p['f1']:.3f} ({p['depth']})" if p else "-"
+        timed_out = "*" if p.get("orientation", "").endswith("(timeout)") else ""
+        poisson_cell = f"{p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / {p['f1']:.3f} ({p['depth']}{timed_out})" if p else "-"
         lines.append(f"| {r['shape']} | {r['condition']} | {v['chamfer_x1e5']:.3f} / {v['nc']:.3f} / {v['f1']:.3f} | "
                      f"{poisson_cell} | {v['pieces']} | "
                      f"{v['grid']} | {v['noise']:.2g} | {v['outliers']} | {v['seconds']:.1f} / {p.get('seconds', float('nan')):.1f} |")

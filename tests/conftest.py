@@ -19,7 +19,9 @@ def pytest_configure(config):
     from hypothesis import HealthCheck, settings
 
     common = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-    settings.register_profile("ci", max_examples=150, **common)
+    # CI replays the same 150 cases every run (a red build must mean a change broke them);
+    # --slow searches fresh random cases.
+    settings.register_profile("ci", max_examples=150, derandomize=True, **common)
     settings.register_profile("slow", max_examples=2500, **common)
     settings.load_profile("slow" if config.getoption("--slow") else "ci")
 

@@ -47,8 +47,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         0, ``"cpu"``). ``method="learned"`` uses none of them and refuses them.
     denoise : bool or None
         Point clouds: the smoothing pass that moves noisy points onto the smooth surface. None
-        (default) turns it on when the estimated noise exceeds a tenth of the point spacing;
-        True or False force it. Meshes: must stay None.
+        (default) turns it on when the estimated fine-scale noise exceeds 0.13 point spacings,
+        and for sparse one-sided scans; True or False force it. Meshes: must stay None.
     progress : bool
         Show a progress bar over the fit's steps (the learned method has no loop to show).
 

@@ -1,10 +1,11 @@
 """Point cloud -> VoroMesh: clean, orient, build a smooth target surface, fit the generators to it.
 
 Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of a 64^3 grid
-empty, and noise pulls generators off the surface. So the VoroLoss fit never sees the raw
-points. It sees dense samples (as many as a mesh fit gets) of a target surface that the points
-define: a robust IMLS field near them and their winding number further away
-(:mod:`voro3d.pointcloud.surface`); the same field labels the cells.
+empty, and noise pulls generators off the surface. So the VoroLoss fit sees dense samples (as
+many as a mesh fit gets) of a target surface that the points define: screened Poisson for
+points that enclose a volume (:mod:`voro3d.pointcloud.poisson`), a robust IMLS field with the
+winding number of the points behind it for open, one-sided scans
+(:mod:`voro3d.pointcloud.surface`); the same target labels the cells.
 """
 from __future__ import annotations
 
@@ -14,9 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..queries import point_areas
 from .normals import estimate_normals
 from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, outlier_mask
-from .surface import imls, target_surface
+from .poisson import poisson_depth, poisson_surface
+from .surface import imls, target_surface, winding_level
 
 __all__ = ["PointCloudInfo", "reconstruct_points", "auto_grid", "max_supported_grid", "transfer_colors"]
 
@@ -48,6 +51,12 @@ HOLE_VOXELS = 1.0
 # Inside cells in groups (joined by Voronoi faces) of fewer cells than this share of the largest
 # group's are strays: cells whose label the samples nearby could not settle.
 STRAY_CELL_SHARE = 0.02
+# Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points
+# enclose a volume (0.5 closed, about 0 for a one-sided scan): their target is screened Poisson.
+CLOSED_LEVEL = 0.25
+# A Poisson surface that runs further than this share of the diagonal out of the points' box is
+# refused (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`).
+MAX_POISSON_ESCAPE = 0.08
 # Share of the points that must lie on the target surface (within two kernel widths).
 MIN_COVERAGE = 0.9
 # The target field is sampled this many times finer than the VoroMesh grid (at most MAX).
@@ -104,11 +113,12 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     2. Normals: the given ones, else estimated and oriented (:func:`estimate_normals`).
     3. On a noisy cloud, one IMLS pass moves the points onto the smooth surface and replaces
        their normals with the field's (its kernel spans several noise deviations).
-    4. The target: IMLS field near the points, winding number away from them, on a grid twice
-       as fine as the VoroMesh grid; pieces and cavities the points do not support are removed.
-    5. The VoroLoss samples: ``150 grid^2`` of them from its Marching Cubes mesh, whose
-       vertices are projected onto the IMLS surface, or the points themselves where they are
-       much denser than the grid (:func:`_fit_samples`); the field labels the cells.
+    4. The target, without the pieces the points do not support: screened Poisson when the
+       points enclose a volume (their winding level is over ``CLOSED_LEVEL``); for an open,
+       one-sided scan the IMLS field near the points and their winding number away from them,
+       on a grid twice as fine as the VoroMesh grid, meshed by Marching Cubes.
+    5. The VoroLoss samples: ``150 grid^2`` of them from the target mesh, or, for a dense scan,
+       the points themselves (:func:`_fit_samples`); the target labels the cells.
 
     Parameters
     ----------
@@ -126,8 +136,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     progress : bool
         As in :func:`voro3d.fit`.
     denoise : bool or None
-        The smoothing pass of step 3: None decides from the estimated noise (on above
-        ``NOISY`` spacings), True or False force it.
+        The smoothing pass of step 3: None turns it on above ``NOISY`` spacings of estimated
+        fine-scale noise, and for sparse one-sided scans; True or False force it.
 
     Returns
     -------
@@ -190,15 +200,24 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     # reach past its band with the planes of single points, so they keep the wider kernel.
     per_spacing = TRUSTED_WIDTH_PER_SPACING if trusted and not dense else WIDTH_PER_SPACING
     widths = np.maximum(per_spacing * stats.spacing, WIDTH_PER_NOISE * stats.noise)
-    # The smoothing pass also gives sparse clouds normals that agree across a sharp edge; dense
-    # clean clouds keep their points exact (and thin walls their two sides).
-    smoothed = (not dense) if denoise is None else bool(denoise)
+    level = winding_level(framed, normals, point_areas(framed), float(np.median(widths)))
+    closed = level > CLOSED_LEVEL
+    # The smoothing pass: noisy points onto their smooth surface. One-sided scans also get it
+    # when sparse (normals that agree across a sharp edge); dense clean clouds keep their points
+    # exact (and thin walls their two sides), and Poisson follows clean sparse ones closer
+    # unsmoothed (bunny at 5k points: CD 1.13 against 1.77).
+    smoothed = (noisy or not (closed or dense)) if denoise is None else bool(denoise)
     if smoothed:
         value, gradient = imls(framed, normals, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
-    target = target_surface(framed, normals, widths, min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION),
-                            dense=dense and not smoothed)
+    target = poisson_surface(framed, normals, poisson_depth(grid)) if closed else None
+    if target is not None and target.escape(framed) > MAX_POISSON_ESCAPE:
+        # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
+        target = None
+    if target is None:
+        target = target_surface(framed, normals, widths, min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION),
+                                dense=dense and not smoothed, level=level)
     _check_coverage(target, framed, widths)
     seconds["surface"] = time.perf_counter() - start
 
@@ -227,9 +246,11 @@ def _fit_samples(target, points, spacing, grid: int, *, seed: int) -> np.ndarray
     Dense clean points (``target.dense``: spacing under a third of a voxel) are exact samples
     already, and the proxy mesh is only as good as its grid (a wall thinner than a grid step is
     lost there): they are used, and proxy samples only fill the holes, where no point is within
-    ``HOLE_VOXELS`` voxels. Sparser points leave voxels empty: then the samples all come from the proxy
-    mesh, whose vertices are first moved onto the IMLS surface (its samples then lie within the
-    chord error of a mesh twice finer than the grid).
+    ``HOLE_VOXELS`` voxels. Otherwise the samples all come from the target mesh: a Poisson
+    mesh as it is (four times finer than the grid), or the IMLS proxy with its vertices moved
+    onto the IMLS surface (its samples then lie within the chord error of a mesh twice finer
+    than the grid). On closed clouds, dense ones too, Poisson's samples beat the points:
+    bunny and armadillo at 100k points, CD 0.607 / 0.511 from the points, 0.597 / 0.478.
     """
     from scipy.spatial import cKDTree
 
