@@ -11,7 +11,14 @@ setup(
             define_macros=[("NDEBUG", None), ("CGAL_DISABLE_ROUNDING_MATH_CHECK", None)],
             extra_compile_args=["-O3"],
             libraries=["gmp", "mpfr"],
-        )
+        ),
+        Pybind11Extension(
+            "voro3d._fitkernel",
+            ["src/voro3d_fitkernel.cpp"],
+            cxx_std=17,
+            extra_compile_args=["-O3", "-pthread"],
+            extra_link_args=["-pthread"],
+        ),
     ],
     cmdclass={"build_ext": build_ext},
 )

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from . import _fitkernel
 from ._validate import as_points, positive_int
 from .extract import VoroMesh
 from .generators import initial_generators
@@ -34,6 +35,11 @@ SAMPLES_PER_FACE = 150
 # thingi32 44234 at 32, bunny at 64) the final loss is within 3% and CD and F1 within 1%; with
 # no second search the final loss is 1.4-6.4 times higher and CD 3-8% worse.
 REFRESH_VOXELS = 1.0
+
+# On CPU each step runs the compiled kernel (voro3d._fitkernel: loss and gradient in one threaded
+# pass); False runs the torch path there too, the reference that CUDA runs, so that
+# benchmarks/profile_fit.py and the tests can compare the two.
+_CPU_KERNEL = True
 
 
 @dataclass(frozen=True)
@@ -139,10 +145,12 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     after a generator has moved ``REFRESH_VOXELS`` voxels, the nearest generator and bisector
     being re-ranked among them at every step; the loss gradient is written by hand.
 
-    On CPU the loop runs torch on one thread, restoring the caller's setting afterwards: its
-    tensors are small enough that OpenMP's per-operation fork and join cost more than a second
-    thread gains (on a loaded machine, many times more), and one thread makes runs bitwise
-    reproducible. The kNN searches use every core.
+    On CPU each step's loss and gradient come from the compiled kernel ``voro3d._fitkernel``
+    (one pass over the candidates, on as many threads as ``torch.get_num_threads()`` says;
+    its gradient is summed in fixed point, so a seed gives the same bits on any thread count),
+    and the few torch operations left (Adam) run on one thread, restoring the caller's setting
+    afterwards. On CUDA the loop runs the torch path, which the kernel is tested against. The kNN
+    searches use every core.
     """
     start = time.perf_counter()
     grid = positive_int(grid, "grid", minimum=2)
@@ -198,10 +206,11 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     torch_device = _device(device)
 
     generators = initial_generators(samples, grid)
-    loop = _FitLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, device=torch_device)
+    threads = torch.get_num_threads()
+    loop = _FitLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, device=torch_device,
+                    threads=threads)
     initialised = time.perf_counter()
 
-    threads = torch.get_num_threads()
     if torch_device.type == "cpu":
         torch.set_num_threads(1)
     try:
@@ -247,13 +256,16 @@ class _FitLoop:
     """
 
     def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int,
-                 batch_fraction: float, device: torch.device):
+                 batch_fraction: float, device: torch.device, threads: int = 1):
         self.n_samples = samples.shape[0]
+        self.kernel = device.type == "cpu" and _CPU_KERNEL
+        self.threads = threads
         self.batch = max(1, int(round(batch_fraction * self.n_samples)))
         wrapped = np.concatenate([samples, samples[: self.batch]])
         self.samples_t = torch.tensor(wrapped.T, dtype=torch.float32, device=device).contiguous()
         self.generators_t = torch.nn.Parameter(
             torch.tensor(generators.T, dtype=torch.float32, device=device).contiguous())
+        self.grad_t = torch.zeros_like(self.generators_t)
         self.k = min(k, generators.shape[0])
         # KD-tree queries in spatial order run 1.5 times faster than in the samples' random
         # order (the tree's nodes stay in cache); the samples never move, so sort them once.
@@ -284,17 +296,7 @@ class _FitLoop:
         offsets = torch.randint(self.n_samples, (steps,), generator=torch.Generator().manual_seed(seed)).tolist()
         losses = torch.empty(steps, dtype=torch.float32, device=generators_t.device)
         for step in tqdm(range(steps), desc="VoroMesh fit", disable=not progress, leave=False):
-            generators_t.grad = None
-            loss = torch.zeros((), device=generators_t.device)
-            # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at
-            # a time: their temporaries then stay in cache instead of being allocated afresh.
-            for start in range(0, self.batch, PAIR_BLOCK):
-                window = slice(offsets[step] + start, offsets[step] + min(start + PAIR_BLOCK, self.batch))
-                samples_t = self.samples_t[:, window].contiguous()
-                nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
-                block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
-                block_loss.backward()
-                loss += block_loss.detach()
+            loss = self._loss_and_grad(offsets[step])
             rate = lr * gamma ** bisect.bisect_right(milestones, step)
             with torch.no_grad():
                 optimizer.step(rate)
@@ -305,8 +307,34 @@ class _FitLoop:
                 self._search()
         return losses.cpu().numpy().astype(np.float64)
 
+    def _loss_and_grad(self, offset: int):
+        """Loss of the batch at ``offset``, with its gradient written to ``generators_t.grad``."""
+        generators_t = self.generators_t
+        if self.kernel:
+            window = slice(offset, offset + self.batch)
+            generators_t.grad = self.grad_t
+            return _fitkernel.voroloss(self.samples_t.numpy().T[window], generators_t.detach().numpy().T,
+                                       self.candidates_t.numpy().T[window], self.grad_t.numpy().T,
+                                       threads=self.threads)
+        generators_t.grad = None
+        loss = torch.zeros((), device=generators_t.device)
+        # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at
+        # a time: their temporaries then stay in cache instead of being allocated afresh.
+        for start in range(0, self.batch, PAIR_BLOCK):
+            window = slice(offset + start, offset + min(start + PAIR_BLOCK, self.batch))
+            samples_t = self.samples_t[:, window].contiguous()
+            nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
+            block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
+            block_loss.backward()
+            loss += block_loss.detach()
+        return loss
+
     def loss(self) -> float:
         """VoroLoss over all samples with the current candidates."""
+        if self.kernel:
+            return _fitkernel.voroloss(self.samples_t.numpy().T[: self.n_samples],
+                                       self.generators_t.detach().numpy().T,
+                                       self.candidates_t.numpy().T[: self.n_samples], threads=self.threads)
         with torch.no_grad():
             samples_t = self.samples_t[:, : self.n_samples]
             sites = self.generators_t.detach()

@@ -1,0 +1,194 @@
+"""The compiled fit step voro3d._fitkernel: the torch VoroLoss's value and gradient, thread-count
+independence, every input check, the GIL released, and a fit through it as good as through torch."""
+import threading
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from voro3d import _fitkernel
+from voro3d import fitting as fit_module
+from voro3d.extract import extract_mesh
+from voro3d.generators import initial_generators
+from voro3d.loss import knn_candidates, voroloss
+from voro3d.watertight import check_watertight
+
+
+def _band(grid=16, n=3000, seed=0):
+    """Generators on the grid band around a sphere, jittered off the grid; samples on the sphere."""
+    rng = np.random.default_rng(seed)
+    samples = rng.normal(size=(n, 3))
+    samples *= 0.55 / np.linalg.norm(samples, axis=1, keepdims=True)
+    generators = initial_generators(samples, grid) + rng.normal(scale=0.2 * 2 / (grid - 1), size=(1, 3))
+    generators += rng.normal(scale=0.1 * 2 / (grid - 1), size=generators.shape)
+    return samples, generators
+
+
+def _torch_loss_and_grad(samples, generators, candidates):
+    generators_t = torch.tensor(generators, dtype=torch.float64, requires_grad=True)
+    loss = voroloss(torch.tensor(samples, dtype=torch.float64), generators_t, candidates=candidates)
+    loss.backward()
+    return loss.item(), generators_t.grad.numpy()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_matches_torch_in_float64(seed):
+    rng = np.random.default_rng(seed)
+    generators = rng.uniform(-1, 1, (200, 3))
+    samples = rng.uniform(-0.9, 0.9, (3000, 3))
+    # Shuffled columns: the kernel re-ranks the candidates, like torch.
+    candidates = rng.permuted(knn_candidates(samples, generators, k=11), axis=1)
+    expected_loss, expected_grad = _torch_loss_and_grad(samples, generators, candidates)
+    grad = np.full_like(generators, np.nan)
+    loss = _fitkernel.voroloss(samples, generators, candidates, grad, threads=2)
+    assert loss == pytest.approx(expected_loss, rel=1e-12)
+    # The gradient is summed in fixed point (2^-40 per term).
+    np.testing.assert_allclose(grad, expected_grad, rtol=0, atol=1e-12 * np.abs(expected_grad).max() + 1e-14)
+
+
+def test_matches_torch_on_a_fitted_like_band_with_strided_int32_views():
+    samples, generators = _band()
+    candidates = knn_candidates(samples, generators, k=11)
+    expected_loss, expected_grad = _torch_loss_and_grad(samples, generators, candidates)
+    # Coordinate-major storage read through transposed views, as the fit loop passes them.
+    samples_t, generators_t = np.ascontiguousarray(samples.T), np.ascontiguousarray(generators.T)
+    candidates_t = np.ascontiguousarray(candidates.T.astype(np.int32))
+    grad_t = np.zeros_like(generators_t)
+    loss = _fitkernel.voroloss(samples_t.T, generators_t.T, candidates_t.T, grad_t.T)
+    assert loss == pytest.approx(expected_loss, rel=1e-12)
+    np.testing.assert_allclose(grad_t.T, expected_grad, rtol=0, atol=1e-9 * np.abs(expected_grad).max())
+
+
+def test_float32_agrees_with_float64():
+    samples, generators = _band()
+    candidates = knn_candidates(samples, generators, k=11)
+    grad_64, grad_32 = np.zeros_like(generators), np.zeros(generators.shape, np.float32)
+    loss_64 = _fitkernel.voroloss(samples, generators, candidates, grad_64)
+    loss_32 = _fitkernel.voroloss(samples.astype(np.float32), generators.astype(np.float32), candidates, grad_32)
+    assert loss_32 == pytest.approx(loss_64, rel=1e-4)
+    np.testing.assert_allclose(grad_32, grad_64, rtol=0, atol=1e-3 * np.abs(grad_64).max())
+
+
+def test_any_thread_count_gives_the_same_bits():
+    samples, generators = _band(n=20_000)
+    samples, generators = samples.astype(np.float32), generators.astype(np.float32)
+    candidates = knn_candidates(samples, generators, k=11)
+    results = []
+    for threads in (1, 2, 3, 8):
+        grad = np.zeros_like(generators)
+        results.append((_fitkernel.voroloss(samples, generators, candidates, grad, threads=threads), grad))
+    for loss, grad in results[1:]:
+        assert loss == results[0][0]
+        np.testing.assert_array_equal(grad, results[0][1])
+
+
+def test_copies_of_the_nearest_generator_are_skipped():
+    rng = np.random.default_rng(2)
+    generators = rng.uniform(-1, 1, (40, 3))
+    samples = rng.uniform(-0.5, 0.5, (100, 3))
+    doubled = np.vstack([generators, generators[:10]])
+    candidates = knn_candidates(samples, doubled, k=20)
+    expected_loss, expected_grad = _torch_loss_and_grad(samples, doubled, candidates)
+    grad = np.zeros_like(doubled)
+    assert _fitkernel.voroloss(samples, doubled, candidates, grad) == pytest.approx(expected_loss, rel=1e-12)
+    np.testing.assert_allclose(grad, expected_grad, rtol=0, atol=1e-12)
+    # Every candidate a copy of the nearest: no bisector, zero loss and gradient.
+    assert _fitkernel.voroloss(samples[:1], doubled, np.array([[0, 40]]), grad) == 0.0
+    assert not grad.any()
+
+
+def test_loss_without_gradient():
+    samples, generators = _band(n=500)
+    candidates = knn_candidates(samples, generators, k=11)
+    assert _fitkernel.voroloss(samples, generators, candidates) == pytest.approx(
+        voroloss(samples, torch.tensor(generators), candidates=candidates).item(), rel=1e-12)
+
+
+SAMPLES = np.random.default_rng(0).uniform(-1, 1, (20, 3))
+SITES = np.random.default_rng(1).uniform(-1, 1, (10, 3))
+CANDIDATES = np.tile(np.arange(4), (20, 1))
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(samples=SAMPLES[:, :2]), ValueError, r"samples must have shape \(m, 3\), got \(20, 2\)"),
+    (dict(samples=SAMPLES[:0]), ValueError, "samples must hold at least 1 point, got 0"),
+    (dict(generators=SITES[:, None]), ValueError, r"generators must have shape \(n, 3\), got \(10, 1, 3\)"),
+    (dict(generators=SITES[:1]), ValueError, "generators must hold at least 2 points, got 1"),
+    (dict(candidates=CANDIDATES[:, :1]), ValueError, r"candidates must have shape \(m, c\) with c >= 2, got \(20, 1\)"),
+    (dict(candidates=CANDIDATES[:5]), ValueError, r"candidates must have one row per sample, shape \(20, c\), got \(5, 4\)"),
+    (dict(candidates=np.where(np.arange(20)[:, None] == 7, 10, CANDIDATES)), ValueError,
+     r"candidates holds index 10 at row 7, outside \[0, 10\)"),
+    (dict(candidates=np.where(np.arange(20)[:, None] == 3, -1, CANDIDATES)), ValueError,
+     r"candidates holds index -1 at row 3, outside \[0, 10\)"),
+    (dict(candidates=CANDIDATES.astype(float)), TypeError, "candidates must be an int32 or int64 array of indices, got dtype float64"),
+    (dict(samples=np.where(np.arange(20)[:, None] == 4, np.nan, SAMPLES)), ValueError, "samples holds NaN or inf at row 4"),
+    (dict(generators=np.where(np.arange(10)[:, None] == 2, np.inf, SITES)), ValueError, "generators holds NaN or inf at row 2"),
+    (dict(samples=SAMPLES.astype(np.float16)), TypeError, "samples must be float32 or float64, got dtype float16"),
+    (dict(generators=SITES.astype(np.float32)), TypeError, r"generators must have the dtype of samples \(float64\), got float32"),
+    (dict(samples=SAMPLES.tolist()), TypeError, "samples must be a numpy array, got list"),
+    (dict(grad=np.zeros((9, 3))), ValueError, r"grad must have shape \(10, 3\) like generators, got \(9, 3\)"),
+    (dict(grad=np.zeros((10, 3), np.float32)), TypeError, r"grad must have the dtype of generators \(float64\), got float32"),
+    (dict(grad=np.broadcast_to(0.0, (10, 3))), ValueError, "grad must be writeable"),
+    (dict(threads=0), ValueError, "threads must be >= 1, got 0"),
+])
+def test_bad_input(kwargs, error, match):
+    arguments = dict(samples=SAMPLES, generators=SITES, candidates=CANDIDATES, grad=None, threads=1) | kwargs
+    with pytest.raises(error, match=match):
+        _fitkernel.voroloss(**arguments)
+
+
+def test_releases_the_gil():
+    samples, generators = _band(n=400_000)
+    candidates = knn_candidates(samples, generators, k=11)
+    grad = np.zeros_like(generators)
+    done = threading.Event()
+    worker = threading.Thread(
+        target=lambda: ([_fitkernel.voroloss(samples, generators, candidates, grad) for _ in range(3)], done.set()))
+    start = last = time.perf_counter()
+    worker.start()
+    longest = 0.0
+    while not done.is_set():  # this thread keeps running only while the worker does not hold the GIL
+        now = time.perf_counter()
+        longest, last = max(longest, now - last), now
+    worker.join()
+    elapsed = time.perf_counter() - start
+    assert elapsed > 0.1 and longest < 0.5 * elapsed, (longest, elapsed)
+
+
+def _sphere_samples(n):
+    rng = np.random.default_rng(0)
+    samples = rng.normal(size=(n, 3))
+    return 0.9 * samples / np.linalg.norm(samples, axis=1, keepdims=True)
+
+
+def _inside(points):
+    return np.linalg.norm(points, axis=1) < 0.9
+
+
+def test_fit_through_the_kernel_matches_the_torch_path(monkeypatch):
+    samples = _sphere_samples(20_000)
+    options = dict(steps=60, milestones=(30, 45), progress=False)
+    kernel, kernel_info = fit_module.fit_samples(samples, _inside, 20, **options)
+    monkeypatch.setattr(fit_module, "_CPU_KERNEL", False)
+    reference, reference_info = fit_module.fit_samples(samples, _inside, 20, **options)
+    assert kernel_info.final_loss == pytest.approx(reference_info.final_loss, rel=0.03)
+    assert (kernel.occupancy == reference.occupancy).mean() > 0.99
+    assert np.abs(kernel.generators - reference.generators).max() < 0.1 * 2 / 19
+    for shape in (kernel, reference):
+        assert check_watertight(extract_mesh(shape.generators, shape.occupancy), self_intersection=False).watertight
+
+
+def test_fit_is_the_same_for_a_seed_whatever_the_threads():
+    samples = _sphere_samples(5000)
+    options = dict(steps=30, milestones=(20,), progress=False)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        first, _ = fit_module.fit_samples(samples, _inside, 12, **options)
+        torch.set_num_threads(3)
+        again, _ = fit_module.fit_samples(samples, _inside, 12, **options)
+    finally:
+        torch.set_num_threads(threads)
+    np.testing.assert_array_equal(again.generators, first.generators)
+    np.testing.assert_array_equal(again.occupancy, first.occupancy)
