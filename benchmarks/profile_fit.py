@@ -9,6 +9,10 @@ Three tables:
   (:func:`voro3d.metrics.evaluate`, paper conventions).
 * ``steps``: one mesh per grid, the loop's steps timed part by part (batch window, nearest-pair
   search, loss forward+backward, Adam+schedule+clamp+displacement check, kNN searches).
+* ``kernel`` (``--kernel-study``): each mesh and grid fitted through the torch step
+  (``fitting._CPU_KERNEL = False``, with Open3D's kNN search) and through the compiled kernel
+  (``voro3d._fitkernel``), interleaved so that both see the same load: wall and CPU seconds of
+  the whole fit, final loss, CD / F1 / NC and watertightness of the extracted mesh.
 * ``refresh`` (``--refresh-study``): the fit redone with the candidates searched again every step
   (``REFRESH_VOXELS = 0``, the exact loss) and at other thresholds; the final loss is recomputed
   exactly (fresh kNN search) so the policies are compared on equal terms.
@@ -18,7 +22,7 @@ so the load average at start and end is recorded with them.
 Writes ``<out>/profile_fit.{md,json}``.
 
     python benchmarks/profile_fit.py [--meshes sphere organic_bunny.off] [--grids 32 64]
-        [--steps-mesh organic_bunny.off] [--refresh-study] [--out out/profile_fit]
+        [--steps-mesh organic_bunny.off] [--refresh-study] [--kernel-study] [--out out/profile_fit]
 """
 from __future__ import annotations
 
@@ -129,6 +133,30 @@ def step_row(name, mesh, grid, steps):
     return row
 
 
+def kernel_rows(name, mesh, grid, steps, repeats):
+    rows = []
+    try:
+        for repeat in range(repeats):
+            for kernel in (False, True):
+                fit_module._CPU_KERNEL = kernel
+                load = os.getloadavg()[0]
+                cpu = time.process_time()
+                voromesh, info = fit_module.fit(mesh, grid, steps=steps)
+                cpu = time.process_time() - cpu
+                surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+                metrics = evaluate(surface, mesh)
+                rows.append({"mesh": name, "grid": grid, "repeat": repeat, "step": "kernel" if kernel else "torch",
+                             "fit_total_s": info.total_seconds, "optimisation_s": info.optimisation_seconds,
+                             "fit_cpu_s": cpu, "searches": info.candidate_searches, "final_loss": info.final_loss,
+                             "cd_x1e5": metrics["chamfer_x1e5"], "f1": metrics["f1"], "nc": metrics["nc"],
+                             "watertight": check_watertight(surface, self_intersection=False).watertight,
+                             "load_before": load})
+                print(rows[-1], flush=True)
+    finally:
+        fit_module._CPU_KERNEL = True
+    return rows
+
+
 def refresh_rows(name, mesh, grid, steps, thresholds):
     vertices, triangles = mesh_arrays(mesh)
     frame = fit_frame((vertices, triangles))
@@ -170,6 +198,9 @@ def main():
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--steps-mesh", default="organic_bunny.off", help="mesh of the per-step table")
     parser.add_argument("--refresh-study", action="store_true")
+    parser.add_argument("--kernel-study", action="store_true", help="torch step vs compiled kernel, interleaved")
+    parser.add_argument("--kernel-grids", nargs="+", type=int, default=[32, 64])
+    parser.add_argument("--kernel-repeats", type=int, default=1)
     parser.add_argument("--refresh-grids", nargs="+", type=int, default=[32, 64])
     parser.add_argument("--refresh-thresholds", nargs="+", type=float, default=[0.0, 0.5, 1.0, 2.0, float("inf")])
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "profile_fit")
@@ -177,7 +208,7 @@ def main():
 
     result = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "torch": torch.__version__,
                           "load_average_at_start": os.getloadavg()},
-              "phases": [], "steps": [], "refresh": []}
+              "phases": [], "steps": [], "kernel": [], "refresh": []}
     meshes = {name: load(name) for name in dict.fromkeys(args.meshes + [args.steps_mesh])}
     for grid in args.grids:
         for name in args.meshes:
@@ -185,6 +216,10 @@ def main():
             print(result["phases"][-1], flush=True)
         result["steps"].append(step_row(args.steps_mesh, meshes[args.steps_mesh], grid, args.steps))
         print(result["steps"][-1], flush=True)
+    if args.kernel_study:
+        for grid in args.kernel_grids:
+            for name in args.meshes:
+                result["kernel"] += kernel_rows(name, meshes[name], grid, args.steps, args.kernel_repeats)
     if args.refresh_study:
         for grid in args.refresh_grids:
             for name in args.meshes:
@@ -196,6 +231,7 @@ def main():
     text = "# VoroMesh fit profile\n\n" + f"Machine: {json.dumps(result['machine'])}\n\n"
     text += "\n".join(markdown(title, result[key]) for key, title in
                       (("phases", "Phases (wall-clock seconds)"), ("steps", "Loop parts (wall-clock seconds)"),
+                       ("kernel", "Torch step vs compiled kernel (interleaved)"),
                        ("refresh", "Candidate-search threshold vs quality")))
     (args.out / "profile_fit.md").write_text(text)
     print(text)

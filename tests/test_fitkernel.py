@@ -1,11 +1,13 @@
-"""The compiled fit step voro3d._fitkernel: the torch VoroLoss's value and gradient, thread-count
-independence, every input check, the GIL released, and a fit through it as good as through torch."""
+"""The compiled fit step voro3d._fitkernel: the torch VoroLoss's value and gradient, the exact kNN
+search, thread-count independence, every input check, the GIL released, and a fit through it as
+good as through torch."""
 import threading
 import time
 
 import numpy as np
 import pytest
 import torch
+from scipy.spatial import cKDTree
 
 from voro3d import _fitkernel
 from voro3d import fitting as fit_module
@@ -154,6 +156,53 @@ def test_releases_the_gil():
     worker.join()
     elapsed = time.perf_counter() - start
     assert elapsed > 0.1 and longest < 0.5 * elapsed, (longest, elapsed)
+
+
+@pytest.mark.parametrize("cell", [1e-4, 0.05, 0.3, 10.0])
+def test_nearest_generators_are_the_exact_knn(cell):
+    rng = np.random.default_rng(3)
+    generators = rng.uniform(-1, 1, (500, 3))
+    # Some samples outside the generators' box, where the grid's border cells are clamped.
+    samples = rng.uniform(-1.5, 1.5, (4000, 3))
+    found = _fitkernel.nearest_generators(samples, generators, 11, cell=cell, threads=2)
+    _, expected = cKDTree(generators).query(samples, 11)
+    assert found.dtype == np.int32 and found.shape == (4000, 11)
+    np.testing.assert_array_equal(found, expected)
+
+
+def test_nearest_generators_on_a_fitted_like_band_any_threads():
+    samples, generators = _band(grid=24, n=20_000)
+    samples, generators = samples.astype(np.float32), generators.astype(np.float32)
+    one = _fitkernel.nearest_generators(samples, generators, 11, cell=2 / 23)
+    np.testing.assert_array_equal(_fitkernel.nearest_generators(samples, generators, 11, cell=2 / 23, threads=3), one)
+    squared = ((samples[:, None, :].astype(np.float64) - generators[one]) ** 2).sum(-1)
+    _, expected = cKDTree(generators.astype(np.float64)).query(samples.astype(np.float64), 11)
+    expected_squared = ((samples[:, None, :].astype(np.float64) - generators[expected]) ** 2).sum(-1)
+    np.testing.assert_allclose(squared, expected_squared, rtol=1e-12, atol=0)
+
+
+def test_nearest_generators_ties_go_to_the_lower_index():
+    generators = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [5, 5, 5]])
+    found = _fitkernel.nearest_generators(np.zeros((1, 3)), generators, 4, cell=0.5)
+    assert found.tolist() == [[0, 1, 2, 3]]
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(k=0), ValueError, r"k must be in \[1, 10\] \(the number of generators\), got 0"),
+    (dict(k=11), ValueError, r"k must be in \[1, 10\] \(the number of generators\), got 11"),
+    (dict(cell=0.0), ValueError, "cell must be a finite number > 0"),
+    (dict(cell=np.nan), ValueError, "cell must be a finite number > 0"),
+    (dict(threads=0), ValueError, "threads must be >= 1, got 0"),
+    (dict(samples=SAMPLES[:, :2]), ValueError, r"samples must have shape \(m, 3\), got \(20, 2\)"),
+    (dict(samples=np.where(np.arange(20)[:, None] == 5, np.nan, SAMPLES)), ValueError, "samples holds NaN or inf at row 5"),
+    (dict(generators=np.where(np.arange(10)[:, None] == 2, np.inf, SITES)), ValueError, "generators holds NaN or inf at row 2"),
+    (dict(generators=SITES.astype(np.float32)), TypeError, r"generators must have the dtype of samples \(float64\), got float32"),
+    (dict(samples=SAMPLES.astype(int)), TypeError, "samples must be float32 or float64, got dtype int64"),
+])
+def test_nearest_generators_bad_input(kwargs, error, match):
+    arguments = dict(samples=SAMPLES, generators=SITES, k=4, cell=0.1, threads=1) | kwargs
+    with pytest.raises(error, match=match):
+        _fitkernel.nearest_generators(**arguments)
 
 
 def _sphere_samples(n):

@@ -272,8 +272,12 @@ class _FitLoop:
         voxel = np.floor((samples + 1.0) * (grid - 1) / 2.0).astype(np.int64)
         order = np.argsort((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2], kind="stable")
         self.search_samples = np.ascontiguousarray(samples[order], dtype=np.float32)
+        self.voxel = 2.0 / (grid - 1)
         self.search_rank = torch.empty(order.size, dtype=torch.int64)
         self.search_rank[torch.from_numpy(order)] = torch.arange(order.size)
+        # Rows of the search's answer for the samples' order with the first window repeated at the
+        # end: one gather (a scatter by ``order`` took 1.6 times as long).
+        self.search_take = np.concatenate([self.search_rank.numpy(), self.search_rank.numpy()[: self.batch]])
         self.searches = 0
         self._search()
 
@@ -281,10 +285,17 @@ class _FitLoop:
         """kNN candidates of every sample at the current generators."""
         sites = self.generators_t.detach()
         positions = np.ascontiguousarray(sites.t().cpu().numpy())
-        found = torch.from_numpy(nearest_indices(self.search_samples, positions, self.k))
-        # Back to the samples' order, coordinate-major, with the first window repeated at the end.
-        found = found.index_select(0, self.search_rank).t()
-        self.candidates_t = torch.cat([found, found[:, : self.batch]], dim=1).to(sites.device)
+        if self.kernel:
+            # The kernel's exact grid search, 1.4-1.8 times faster than Open3D's KD-tree here, and
+            # sample-major candidates, which the kernel reads a row at a time.
+            found = _fitkernel.nearest_generators(self.search_samples, positions, self.k, cell=self.voxel,
+                                                  threads=self.threads)
+            self.candidates_t = torch.from_numpy(found.take(self.search_take, axis=0)).t()
+        else:
+            found = torch.from_numpy(nearest_indices(self.search_samples, positions, self.k))
+            # Back to the samples' order, coordinate-major, with the first window repeated at the end.
+            found = found.index_select(0, self.search_rank).t()
+            self.candidates_t = torch.cat([found, found[:, : self.batch]], dim=1).to(sites.device)
         self.searched_at = sites.clone()
         self.searches += 1
 
