@@ -7,7 +7,12 @@ a function of the same name.
 """
 from importlib import import_module
 
+from ._open3d_import import defer_web_viewer as _defer_web_viewer
+
 __version__ = "0.1.0"
+
+# Open3D's plotly/dash web viewer, which voro3d never uses, is loaded only if something calls it.
+_defer_web_viewer()
 
 _PUBLIC = {
     "load_mesh": "io",
