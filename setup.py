@@ -1,4 +1,4 @@
-"""Builds the CGAL Delaunay extension; everything else is in pyproject.toml."""
+"""Builds the compiled extensions, voro3d._cgal and voro3d._fitkernel; the rest is in pyproject.toml."""
 from pybind11.setup_helpers import Pybind11Extension, build_ext
 from setuptools import setup
 
@@ -6,7 +6,8 @@ setup(
     ext_modules=[
         Pybind11Extension(
             "voro3d._cgal",
-            ["src/voro3d_cgal.cpp"],
+            ["src/voro3d_cgal.cpp", "src/voro3d_clean.cpp"],
+            depends=["src/voro3d_checks.h"],
             cxx_std=17,
             define_macros=[("NDEBUG", None), ("CGAL_DISABLE_ROUNDING_MATH_CHECK", None)],
             extra_compile_args=["-O3"],

@@ -6,6 +6,8 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include "voro3d_checks.h"
+
 #include <CGAL/Delaunay_triangulation_3.h>
 #include <CGAL/Exact_predicates_exact_constructions_kernel.h>
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
@@ -23,80 +25,11 @@
 
 namespace py = pybind11;
 
-using Points = py::array_t<double, py::array::c_style | py::array::forcecast>;
-using Indices = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>;
-
-namespace {
-py::array_t<std::int64_t> to_array(const std::vector<std::int64_t>& values, py::ssize_t width) {
-  py::array_t<std::int64_t> result({static_cast<py::ssize_t>(values.size()) / width, width});
-  std::copy(values.begin(), values.end(), result.mutable_data());
-  return result;
-}
-
-std::string shape_of(const py::array& array) {
-  std::string text = "(";
-  for (py::ssize_t i = 0; i < array.ndim(); ++i) {
-    text += (i ? ", " : "") + std::to_string(array.shape(i));
-  }
-  return text + (array.ndim() == 1 ? ",)" : ")");
-}
-
-// `value` as a numpy array of one of `kinds` (numpy dtype kind characters), else TypeError.
-py::array as_array(const py::handle& value, const char* name, const std::string& kinds, const char* expected) {
-  py::array array = py::array::ensure(value);
-  if (!array) {
-    throw py::type_error(std::string(name) + " must be an array, got " + std::string(py::str(py::type::handle_of(value).attr("__name__"))));
-  }
-  if (kinds.find(array.dtype().kind()) == std::string::npos) {
-    throw py::type_error(std::string(name) + " must be " + expected + ", got dtype " + std::string(py::str(array.dtype())));
-  }
-  return array;
-}
-
-void check_shape(const py::array& array, const char* name, py::ssize_t width, const char* letter) {
-  if (array.ndim() != 2 || array.shape(1) != width) {
-    throw py::value_error(std::string(name) + " must have shape (" + letter + ", " + std::to_string(width) + "), got " +
-                          shape_of(array));
-  }
-}
-
-// Finite float64 (n, 3) coordinates with at least `min_rows` rows.
-Points check_points(const py::handle& value, const char* name, py::ssize_t min_rows) {
-  py::array array = as_array(value, name, "fiu", "a real-valued array");
-  check_shape(array, name, 3, "n");
-  if (array.shape(0) < min_rows) {
-    throw py::value_error(std::string(name) + " must hold at least " + std::to_string(min_rows) + " points, got " +
-                          std::to_string(array.shape(0)));
-  }
-  Points points = Points::ensure(array);
-  auto p = points.unchecked<2>();
-  for (py::ssize_t i = 0; i < p.shape(0); ++i) {
-    if (!(std::isfinite(p(i, 0)) && std::isfinite(p(i, 1)) && std::isfinite(p(i, 2)))) {
-      throw py::value_error(std::string(name) + " holds NaN or inf at row " + std::to_string(i));
-    }
-  }
-  return points;
-}
-
-// An (m, width) integer array whose every entry indexes one of `n` rows of `target`.
-Indices check_indices(const py::handle& value, const char* name, py::ssize_t width, const char* letter, py::ssize_t n,
-                      const char* target) {
-  py::array array = as_array(value, name, "iu", "an integer array of indices");
-  check_shape(array, name, width, letter);
-  Indices indices = Indices::ensure(array);
-  auto t = indices.unchecked<2>();
-  for (py::ssize_t i = 0; i < t.shape(0); ++i) {
-    for (py::ssize_t j = 0; j < width; ++j) {
-      if (t(i, j) < 0 || t(i, j) >= n) {
-        throw py::value_error(std::string(name) + " holds index " + std::to_string(t(i, j)) + " at row " +
-                              std::to_string(i) + ", outside [0, " + std::to_string(n) + ") for the " +
-                              std::to_string(n) + " rows of " + target);
-      }
-    }
-  }
-  return indices;
-}
-}  // namespace
+using voro3d::check_indices;
+using voro3d::check_points;
+using voro3d::Indices;
+using voro3d::Points;
+using voro3d::to_array;
 
 using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
 using VertexBase = CGAL::Triangulation_vertex_base_with_info_3<std::int64_t, Kernel>;
@@ -282,8 +215,12 @@ py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in,
   return to_array(pairs, 2);
 }
 
+// src/voro3d_clean.cpp
+void register_clean(py::module_& module);
+
 PYBIND11_MODULE(_cgal, module) {
-  module.doc() = "CGAL Delaunay tetrahedralisation for voro3d";
+  module.doc() = "CGAL Delaunay tetrahedralisation, self-intersection test and surface cleaning for voro3d";
+  register_clean(module);
   module.def("delaunay_tetrahedra", &delaunay_tetrahedra, py::arg("points"),
              "(tets (m, 4) int64 positively oriented, cospherical (p, 2) int64 pairs of cells "
              "sharing a circumsphere) of finite (n, 3) points, n >= 4, not all on one plane. "

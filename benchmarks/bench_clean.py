@@ -1,0 +1,294 @@
+"""Cleaned vs uncleaned VoroMesh surfaces, and Marching Cubes, on the dev meshes.
+
+For every mesh of a folder (default ``../shared/data/dev``) and every grid: fit a VoroMesh (the
+generators are cached under ``out/bench_clean/`` with the fit's time, so a rerun refits nothing),
+extract its surface, clean it (:func:`voro3d.cleaning.clean_surface`), and build Marching Cubes
+from the SDF grid of the same resolution. Each surface is scored against the input: CD x1e5, F1
+and NC (:func:`voro3d.metrics.evaluate`), the share of triangles more than 30 degrees off the
+true normal and the share of slivers, smallest angle under 5 degrees
+(:func:`voro3d.metrics.triangle_quality`), faces, and the full watertight check (exact crossing
+test). The cleaned surface is also measured against the uncleaned one: sampled distances both ways
+(in voxels, beside the bound ``clean`` guarantees) and the volume change. Clean time is compared
+with the fit's; the clean's peak memory is the rise of the process's peak RSS during the clean
+(reset through ``/proc/self/clear_refs`` before it). Each shape runs in its own process.
+
+Writes ``benchmarks/results/clean_<grids>.{md,json}`` and a PNG of a few shapes before and after.
+
+    python benchmarks/bench_clean.py [--grids 32 64] [--folder DIR] [--names a.obj b.off] [--limit N]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEV = ROOT.parent / "shared" / "data" / "dev"
+CACHE = ROOT / "out" / "bench_clean"
+SURFACES = ("uncleaned", "cleaned", "mc")
+PICTURED = ("cad_fandisk.obj", "organic_bunny.off", "cad_rocker-arm.obj")
+
+
+def _peak_rss_mib() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _reset_peak_rss() -> bool:
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def _fitted(path: Path, grid: int):
+    """The VoroMesh of ``path`` at ``grid`` and the fit's seconds, from the cache or a new fit."""
+    import torch
+
+    from voro3d.extract import VoroMesh
+    from voro3d.fitting import fit
+    from voro3d.io import load_mesh, mesh_arrays
+    from voro3d.topology import open_edge_count
+
+    stem = CACHE / f"{path.stem}_{grid}"
+    if stem.with_suffix(".npz").exists() and stem.with_suffix(".json").exists():
+        return VoroMesh.load(stem.with_suffix(".npz")), json.loads(stem.with_suffix(".json").read_text())
+    torch.set_num_threads(1)
+    source = load_mesh(path)
+    open_input = open_edge_count(*mesh_arrays(source)) > 0
+    start = time.perf_counter()
+    shape, _ = fit(source, grid, progress=False, allow_open=open_input)
+    fit = dict(fit_seconds=time.perf_counter() - start, open_input=bool(open_input),
+               fit_load_average=Path("/proc/loadavg").read_text().split()[:3])
+    CACHE.mkdir(parents=True, exist_ok=True)
+    shape.save(stem.with_suffix(".npz"))
+    stem.with_suffix(".json").write_text(json.dumps(fit))
+    return shape, fit
+
+
+def _distances_voxels(a, b, voxel, n_samples=100_000):
+    """Sampled distances from surface ``a`` to surface ``b`` (both (vertices, triangles)), in voxels."""
+    import open3d as o3d
+
+    from voro3d.sampling import sample_surface
+
+    points, _ = sample_surface(a, n_samples, seed=1)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(b[0].astype(np.float32)), o3d.core.Tensor(b[1].astype(np.uint32)))
+    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy() / voxel
+
+
+def _one(path, grid, queue):
+    from voro3d.baselines import marching_cubes
+    from voro3d.cleaning import clean_surface
+    from voro3d.extract import voronoi_surface
+    from voro3d.io import fit_frame, load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
+    from voro3d.cleaning import triangle_quality
+    from voro3d.metrics import evaluate
+    from voro3d.queries import sdf_grid
+    from voro3d.watertight import check_watertight
+
+    try:
+        path = Path(path)
+        source = load_mesh(path)
+        shape, fit = _fitted(path, grid)
+        surfaces = {"uncleaned": voronoi_surface(shape.generators, shape.occupancy)}
+        baseline_rss = _peak_rss_mib() if _reset_peak_rss() else float("nan")
+        start = time.perf_counter()
+        vertices, triangles, info = clean_surface(*surfaces["uncleaned"])
+        clean_seconds = time.perf_counter() - start
+        clean_peak = _peak_rss_mib() - baseline_rss
+        surfaces["cleaned"] = (vertices, triangles)
+        frame = fit_frame(source)
+        mc_vertices, mc_triangles = marching_cubes(sdf_grid(frame.apply_mesh(source), grid,
+                                                            allow_open=fit["open_input"]))
+        surfaces["mc"] = (frame.invert(mc_vertices), mc_triangles)
+        row = dict(shape=path.name, grid=grid, status="ok", open_input=fit["open_input"],
+                   fit_seconds=fit["fit_seconds"], clean_seconds=clean_seconds,
+                   clean_time_ratio=clean_seconds / fit["fit_seconds"], clean_peak_rss_mib=clean_peak,
+                   clean=info.as_dict())
+        for name, surface in surfaces.items():
+            scores = evaluate(surface, source)
+            scores.update(triangle_quality(surface, source))
+            report = check_watertight(surface)
+            scores.update(watertight=report.watertight, self_intersecting_pairs=report.self_intersecting_pairs,
+                          volume=report.volume)
+            row[name] = scores
+        voxel = info.voxel
+        to_input = _distances_voxels(surfaces["cleaned"], surfaces["uncleaned"], voxel)
+        from_input = _distances_voxels(surfaces["uncleaned"], surfaces["cleaned"], voxel)
+        row.update(distance_to_uncleaned_max=float(to_input.max()), distance_from_uncleaned_max=float(from_input.max()),
+                   distance_mean=float((to_input.mean() + from_input.mean()) / 2),
+                   distance_bound=info.max_distance / voxel,
+                   volume_change=row["cleaned"]["volume"] / row["uncleaned"]["volume"] - 1)
+        if path.name in PICTURED:
+            for name in ("uncleaned", "cleaned"):
+                save_mesh(to_triangle_mesh(*surfaces[name]), CACHE / f"{path.stem}_{grid}_{name}.ply")
+        queue.put(row)
+    except Exception as error:  # one bad shape is recorded, not fatal
+        queue.put(dict(shape=Path(path).name, grid=grid, status="failed", error=f"{type(error).__name__}: {error}"))
+
+
+def run_shape(path, grid):
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    process = context.Process(target=_one, args=(str(path), grid, queue))
+    process.start()
+    row = queue.get()
+    process.join()
+    return row
+
+
+METRICS = (("faces", "n_triangles", "{:.0f}"), ("off-normal %", "off_normal_share", "{:.1%}"),
+           ("slivers %", "sliver_share", "{:.1%}"), ("CD x1e5", "chamfer_x1e5", "{:.3f}"), ("F1", "f1", "{:.3f}"),
+           ("NC", "nc", "{:.3f}"))
+
+
+def _summary(rows, grid):
+    ok = [r for r in rows if r["grid"] == grid and r["status"] == "ok"]
+    out = dict(grid=grid, shapes=len(ok), failed=len([r for r in rows if r["grid"] == grid]) - len(ok))
+    if not ok:
+        return out
+    for surface in SURFACES:
+        for _, key, _ in METRICS:
+            out[f"{surface}_{key}"] = float(np.mean([r[surface][key] for r in ok]))
+        out[f"{surface}_watertight_pct"] = 100.0 * np.mean([r[surface]["watertight"] for r in ok])
+    out["face_ratio"] = float(np.mean([r["uncleaned"]["n_triangles"] / r["cleaned"]["n_triangles"] for r in ok]))
+    out["face_ratio_min"] = float(min(r["uncleaned"]["n_triangles"] / r["cleaned"]["n_triangles"] for r in ok))
+    for key in ("chamfer_x1e5", "f1", "nc"):
+        change = [r["cleaned"][key] / r["uncleaned"][key] - 1 for r in ok]
+        out[f"{key}_change_mean"], out[f"{key}_change_worst"] = float(np.mean(change)), float(
+            max(change) if key == "chamfer_x1e5" else min(change))
+    out["off_normal_above_mc"] = int(sum(r["cleaned"]["off_normal_share"] > r["mc"]["off_normal_share"] for r in ok))
+    out["slivers_max"] = float(max(r["cleaned"]["sliver_share"] for r in ok))
+    out["off_normal_max"] = float(max(r["cleaned"]["off_normal_share"] for r in ok))
+    out["clean_seconds_mean"] = float(np.mean([r["clean_seconds"] for r in ok]))
+    out["clean_time_ratio_mean"] = float(np.mean([r["clean_time_ratio"] for r in ok]))
+    out["clean_time_ratio_max"] = float(max(r["clean_time_ratio"] for r in ok))
+    out["clean_peak_rss_mib_max"] = float(max(r["clean_peak_rss_mib"] for r in ok))
+    out["distance_max"] = float(max(max(r["distance_to_uncleaned_max"], r["distance_from_uncleaned_max"]) for r in ok))
+    out["distance_bound"] = float(ok[0]["distance_bound"])
+    out["volume_change_max"] = float(max(abs(r["volume_change"]) for r in ok))
+    out["rounds_max"] = int(max(r["clean"]["rounds"] for r in ok))
+    return out
+
+
+def write_tables(rows, grids, out: Path):
+    out.parent.mkdir(parents=True, exist_ok=True)
+    load = Path("/proc/loadavg").read_text().split()[:3]
+    meta = dict(machine=f"{platform.machine()}, {multiprocessing.cpu_count()} cores",
+                date=time.strftime("%Y-%m-%d %H:%M"), load_average_after=load)
+    summaries = [_summary(rows, g) for g in grids]
+    out.with_suffix(".json").write_text(json.dumps(dict(meta=meta, summary=summaries, rows=rows), indent=2,
+                                                   default=float))
+    lines = [f"# Cleaned VoroMesh surfaces ({meta['date']}, {meta['machine']}, load average after {' '.join(load)})",
+             "", "Means over shapes. Off-normal: triangles whose normal is more than 30 degrees from the input's "
+             "normal at the point of the input nearest their centroid (unsigned, as NC). Slivers: smallest "
+             "angle under 5 degrees. CD x1e5, F1 at 0.003, NC against the input (100k samples each). "
+             "Watertight: closed, manifold, oriented, positive volume, no crossing triangles (exact).", "",
+             "| grid | shapes | surface | " + " | ".join(name for name, _, _ in METRICS) + " | watertight % |",
+             "|---|---|---|" + "---|" * len(METRICS) + "---|"]
+    for s in summaries:
+        if not s["shapes"]:
+            continue
+        for surface in SURFACES:
+            cells = [fmt.format(s[f"{surface}_{key}"]) for _, key, fmt in METRICS]
+            lines.append(f"| {s['grid']} | {s['shapes']} | {surface} | " + " | ".join(cells) +
+                         f" | {s[surface + '_watertight_pct']:.0f} |")
+    lines += ["", "| grid | faces fewer (mean, worst) | CD change (mean, worst) | F1 change (mean, worst) | "
+              "NC change (mean, worst) | shapes off-normal above MC | slivers max | clean s (mean) | "
+              "clean / fit (mean, max) | clean peak RSS MiB (max) | distance max / bound (voxels) | "
+              "volume change max | rounds max |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for s in summaries:
+        if not s["shapes"]:
+            continue
+        lines.append(
+            f"| {s['grid']} | {s['face_ratio']:.2f}x, {s['face_ratio_min']:.2f}x | "
+            f"{s['chamfer_x1e5_change_mean']:+.2%}, {s['chamfer_x1e5_change_worst']:+.2%} | "
+            f"{s['f1_change_mean']:+.2%}, {s['f1_change_worst']:+.2%} | "
+            f"{s['nc_change_mean']:+.2%}, {s['nc_change_worst']:+.2%} | {s['off_normal_above_mc']} | "
+            f"{s['slivers_max']:.1%} | {s['clean_seconds_mean']:.2f} | "
+            f"{s['clean_time_ratio_mean']:.1%}, {s['clean_time_ratio_max']:.1%} | {s['clean_peak_rss_mib_max']:.0f} | "
+            f"{s['distance_max']:.3f} / {s['distance_bound']:.2f} | {s['volume_change_max']:.2e} | {s['rounds_max']} |")
+    lines += ["", "## Per shape", "",
+              "| shape | grid | faces before -> after | off-normal % unclean / clean / MC | slivers % unclean / "
+              "clean | CD unclean / clean | F1 unclean / clean | NC unclean / clean | clean s | fit s | "
+              "watertight | rounds |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r["status"] != "ok":
+            lines.append(f"| {r['shape']} | {r['grid']} | failed: {r['error']} |" + " |" * 9)
+            continue
+        u, c, m = r["uncleaned"], r["cleaned"], r["mc"]
+        lines.append(
+            f"| {r['shape']}{' *' if r['open_input'] else ''} | {r['grid']} | {u['n_triangles']} -> {c['n_triangles']} | "
+            f"{u['off_normal_share']:.1%} / {c['off_normal_share']:.1%} / {m['off_normal_share']:.1%} | "
+            f"{u['sliver_share']:.1%} / {c['sliver_share']:.1%} | {u['chamfer_x1e5']:.3f} / {c['chamfer_x1e5']:.3f} | "
+            f"{u['f1']:.3f} / {c['f1']:.3f} | {u['nc']:.3f} / {c['nc']:.3f} | {r['clean_seconds']:.2f} | "
+            f"{r['fit_seconds']:.1f} | {c['watertight']} | {r['clean']['rounds']} |")
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print(f"wrote {out.with_suffix('.md')}")
+
+
+def picture(rows, out_png: Path, folder: Path):
+    """Input, uncleaned and cleaned side by side for the pictured shapes, one row each."""
+    from figures import render_rows
+
+    from voro3d.io import load_mesh
+
+    figure = []
+    for r in rows:
+        if r["status"] != "ok" or r["shape"] not in PICTURED:
+            continue
+        stem = Path(r["shape"]).stem
+        meshes = [load_mesh(folder / r["shape"])] + [
+            load_mesh(CACHE / f"{stem}_{r['grid']}_{name}.ply", weld=False) for name in ("uncleaned", "cleaned")]
+        titles = [f"{stem} (input)",
+                  f"VoroMesh {r['grid']}^3: {r['uncleaned']['n_triangles']} faces",
+                  f"cleaned: {r['cleaned']['n_triangles']} faces"]
+        figure.append((meshes, titles))
+    render_rows(figure, out_png, size=(420, 360))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--folder", type=Path, default=DEV)
+    parser.add_argument("--grids", type=int, nargs="+", default=[32, 64])
+    parser.add_argument("--names", nargs="+", default=None, help="only these files of the folder")
+    parser.add_argument("--limit", type=int, default=None, help="first N meshes only")
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    from voro3d.io import MESH_SUFFIXES
+
+    paths = sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
+    if args.names:
+        paths = [p for p in paths if p.name in args.names]
+    paths = paths[: args.limit]
+    out = args.out or ROOT / "benchmarks" / "results" / f"clean_{'_'.join(map(str, args.grids))}"
+    rows = []
+    for grid in args.grids:
+        for path in paths:
+            row = run_shape(path, grid)
+            rows.append(row)
+            if row["status"] == "ok":
+                u, c, m = row["uncleaned"], row["cleaned"], row["mc"]
+                print(f"{grid:4d} {path.name:28s} faces {u['n_triangles']:6d} -> {c['n_triangles']:6d} "
+                      f"off {u['off_normal_share']:.3f} -> {c['off_normal_share']:.3f} (MC {m['off_normal_share']:.3f}) "
+                      f"slivers {u['sliver_share']:.3f} -> {c['sliver_share']:.3f} CD {u['chamfer_x1e5']:.3f} -> "
+                      f"{c['chamfer_x1e5']:.3f} F1 {u['f1']:.3f} -> {c['f1']:.3f} NC {u['nc']:.3f} -> {c['nc']:.3f} "
+                      f"wt {c['watertight']} {row['clean_seconds']:.2f}s/{row['fit_seconds']:.1f}s", flush=True)
+            else:
+                print(f"{grid:4d} {path.name:28s} FAILED {row['error']}", flush=True)
+            write_tables(rows, args.grids, out)
+    picture(rows, out.with_suffix(".png"), args.folder)
+
+
+if __name__ == "__main__":
+    main()
