@@ -86,7 +86,7 @@ def test_batch_writes_one_watertight_mesh_and_row_per_shape(first_run):
         assert row["seconds"] > 0 and row["peak_memory_mb"] > 0
         assert row["metrics"] is None
         assert row["settings"] == {"method": "fit", "grid": 16, "steps": 20, "seed": 0, "model": None, "eval": False,
-                                   "format": ".ply"}
+                                   "format": ".ply", "clean": True}
     assert summary.counts == {"ok": 3, "failed": 2, "timeout": 0}
     assert not [name for name in _files(output) if Path(name).name.startswith(".")]
 

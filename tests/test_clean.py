@@ -217,3 +217,59 @@ def test_defaults_are_the_documented_ones():
     parameters = inspect.signature(clean).parameters
     assert parameters["max_distance"].default == MAX_DISTANCE
     assert parameters["max_volume_change"].default == MAX_VOLUME_CHANGE
+
+
+def test_every_path_that_returns_a_mesh_cleans_by_default(tmp_path):
+    from voro3d import VoroMesh, VoroMeshStage, extract_mesh, reconstruct
+    from voro3d.shapes import example_mesh
+
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1, 1, (400, 3))
+    shape = VoroMesh(points, np.linalg.norm(points, axis=1) < 0.7)
+    raw = voronoi_surface(shape.generators, shape.occupancy)
+    cleaned, _, _ = clean_surface(*raw)
+    assert len(shape.to_open3d().vertices) == len(cleaned) < len(raw[0])
+    np.testing.assert_array_equal(np.asarray(shape.to_open3d(clean=False).vertices), raw[0])
+    assert len(extract_mesh(points, shape.occupancy, clean=False).triangles) == len(raw[1])
+    sphere = example_mesh("sphere")
+    assert len(reconstruct(sphere, 8, steps=5).triangles) < len(reconstruct(sphere, 8, steps=5, clean=False).triangles)
+    assert VoroMeshStage(8, clean=False).options["clean"] is False
+
+
+def test_cli_no_clean_and_polygons(tmp_path, capsys):
+    from voro3d import VoroMesh
+    from voro3d.cli import main
+    from voro3d.io import load_mesh
+
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1, 1, (400, 3))
+    shape = VoroMesh(points, np.linalg.norm(points, axis=1) < 0.7)
+    shape.save(tmp_path / "g.npz")
+    assert main(["extract", str(tmp_path / "g.npz"), "-o", str(tmp_path / "clean.ply"), "-q"]) == 0
+    assert main(["extract", str(tmp_path / "g.npz"), "-o", str(tmp_path / "raw.ply"), "--no-clean", "-q",
+                 "--polygons", str(tmp_path / "cells.obj")]) == 0
+    raw = voronoi_surface(shape.generators, shape.occupancy)
+    assert len(load_mesh(tmp_path / "raw.ply", weld=False).triangles) == len(raw[1])
+    assert len(load_mesh(tmp_path / "clean.ply", weld=False).triangles) == len(clean(raw).triangles)
+    faces = [line for line in (tmp_path / "cells.obj").read_text().splitlines() if line.startswith("f ")]
+    assert len(faces) == len(shape.to_polygons()[1])
+    with pytest.raises(SystemExit):  # argparse refuses the suffix before anything is written
+        main(["extract", str(tmp_path / "g.npz"), "-o", str(tmp_path / "x.ply"), "--polygons", str(tmp_path / "c.stl")])
+    assert "must end in one of .ply, .obj, .off" in capsys.readouterr().err
+    assert not (tmp_path / "x.ply").exists()
+
+
+def test_batch_no_clean(tmp_path):
+    from voro3d.batch import run_batch
+    from voro3d.io import load_mesh, save_mesh
+    from voro3d.shapes import example_mesh
+
+    (tmp_path / "in").mkdir()
+    save_mesh(example_mesh("sphere"), tmp_path / "in" / "sphere.ply")
+    counts = {}
+    for clean_option in (True, False):
+        out = tmp_path / f"out_{clean_option}"
+        summary = run_batch(tmp_path / "in", out, method="learned", grid=16, workers=1, clean=clean_option)
+        assert summary.rows[0]["settings"]["clean"] is clean_option and summary.rows[0]["status"] == "ok"
+        counts[clean_option] = len(load_mesh(out / "sphere.ply", weld=False).triangles)
+    assert counts[True] < counts[False]

@@ -6,8 +6,9 @@ from hypothesis import strategies as st
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from voro3d import VoroMesh, extract_mesh
+from voro3d.cleaning import MAX_VOLUME_CHANGE, clean_surface
 from voro3d.delaunay import bounding_generators
-from voro3d.extract import DEFAULT_TOLERANCE, _prepare_generators, voronoi_surface
+from voro3d.extract import DEFAULT_TOLERANCE, _prepare_generators, voronoi_polygons, voronoi_surface
 from voro3d.watertight import check_watertight, signed_volume
 
 
@@ -29,13 +30,20 @@ def inside_cell_volume(generators, occupancy):
 
 
 def assert_valid_surface(generators, occupancy):
-    mesh = extract_mesh(generators, occupancy)
+    """The Voronoi faces, then the cleaned surface (every case of the suite runs through clean)."""
+    mesh = extract_mesh(generators, occupancy, clean=False)
     report = check_watertight(mesh)
     assert report.closed and report.edge_manifold and report.vertex_manifold, report
     assert report.consistently_oriented and report.orientable, report
     assert report.self_intersecting_pairs == 0, report
     expected = inside_cell_volume(generators, occupancy)
     assert report.volume == pytest.approx(expected, rel=1e-6), (report.volume, expected)
+    vertices, triangles, info = clean_surface(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+    cleaned = check_watertight((vertices, triangles))
+    assert cleaned.closed and cleaned.edge_manifold and cleaned.vertex_manifold, cleaned
+    assert cleaned.consistently_oriented and cleaned.orientable, cleaned
+    assert cleaned.self_intersecting_pairs == info.input_crossings == 0, cleaned
+    assert abs(cleaned.volume / report.volume - 1) <= MAX_VOLUME_CHANGE * (1 + 1e-9)
     return mesh, report
 
 
@@ -116,7 +124,7 @@ def test_conflicting_duplicates_are_inside():
     outside_copy = points[np.flatnonzero(inside)[:1]]
     with_copy = np.vstack([points, outside_copy])
     merged, _ = assert_valid_surface(with_copy, np.r_[inside, False])
-    reference = extract_mesh(points, inside)
+    reference = extract_mesh(points, inside, clean=False)
     assert np.asarray(merged.vertices).shape == np.asarray(reference.vertices).shape
 
 
@@ -205,3 +213,38 @@ def test_voromesh_load_errors(tmp_path):
     np.savez(other, points=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="lacks arrays"):
         VoroMesh.load(other)
+
+
+def test_voronoi_polygons_are_the_faces_the_surface_triangulates():
+    """One polygon per face, in the triangles' orientation; a fan of each gives the surface."""
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1, 1, (300, 3))
+    inside = np.linalg.norm(points, axis=1) < 0.6
+    vertices, polygons = voronoi_polygons(points, inside)
+    surface_vertices, triangles = voronoi_surface(points, inside)
+    np.testing.assert_array_equal(vertices, surface_vertices)  # no merged vertices here: nothing split
+    fans = np.array([[polygon[0], a, b] for polygon in polygons for a, b in zip(polygon[1:-1], polygon[2:])])
+    assert sorted(map(tuple, fans)) == sorted(map(tuple, triangles))
+    for polygon in polygons:  # planar: every corner on the plane of the first three
+        corners = vertices[polygon]
+        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        assert np.abs((corners - corners[0]) @ normal).max() <= 1e-9 * np.linalg.norm(normal)
+    assert VoroMesh(points, inside).to_polygons()[1][0].tolist() == polygons[0].tolist()
+
+
+def test_voronoi_polygons_of_a_lattice_are_squares():
+    """Co-spherical corners merge: each face of a ball of cubes is one square."""
+    axis = np.arange(-4, 5) * 0.1
+    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    inside = np.linalg.norm(points, axis=1) < 0.25
+    vertices, polygons = voronoi_polygons(points, inside)
+    grid = inside.reshape(9, 9, 9)
+    assert len(polygons) == sum(np.count_nonzero(np.diff(grid.astype(int), axis=a)) for a in range(3))
+    assert {len(polygon) for polygon in polygons} == {4}
+    areas = [np.linalg.norm(np.cross(vertices[p[1]] - vertices[p[0]], vertices[p[3]] - vertices[p[0]])) for p in polygons]
+    np.testing.assert_allclose(areas, 0.01, rtol=1e-6)
+
+
+def test_voronoi_polygons_bad_input():
+    with pytest.raises(ValueError, match="no outside"):
+        voronoi_polygons(np.random.default_rng(0).random((10, 3)), np.ones(10, bool))

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from voro3d.io import (NormalizationFrame, fit_frame, load_mesh, load_points, mesh_arrays, ndc_frame,
-                       save_mesh, to_triangle_mesh)
+                       save_mesh, save_polygons, to_triangle_mesh)
 from voro3d.topology import open_edge_count
 
 
@@ -275,3 +275,49 @@ def test_atomic_path_gives_ordinary_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~umask
+
+
+def read_polygon_ply(path):
+    """(vertices, faces) of a binary PLY as save_polygons writes it, parsed by hand."""
+    data = Path(path).read_bytes()
+    header, body = data.split(b"end_header\n", 1)
+    counts = dict(line.split()[1:3] for line in header.decode().splitlines() if line.startswith("element"))
+    n = int(counts["vertex"])
+    vertices = np.frombuffer(body[: 24 * n], "<f8").reshape(n, 3)
+    faces, at = [], 24 * n
+    for _ in range(int(counts["face"])):
+        size = body[at]
+        faces.append(np.frombuffer(body[at + 1: at + 1 + 4 * size], "<i4"))
+        at += 1 + 4 * size
+    assert at == len(body)
+    return vertices, faces
+
+
+def test_save_polygons_roundtrip(tmp_path):
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1.0 / 3]])
+    faces = [np.array([3, 2, 1, 0]), np.array([0, 1, 4]), np.array([1, 2, 4]), np.array([2, 3, 4]), np.array([3, 0, 4])]
+    back_vertices, back_faces = read_polygon_ply(save_polygons((vertices, faces), tmp_path / "p.ply"))
+    np.testing.assert_array_equal(back_vertices, vertices)
+    assert [f.tolist() for f in back_faces] == [f.tolist() for f in faces]
+    obj = save_polygons((vertices, faces), tmp_path / "p.obj").read_text().splitlines()
+    assert obj[5] == "f 4 3 2 1" and obj[0] == "v 0.0 0.0 0.0"
+    off = save_polygons((vertices, faces), tmp_path / "p.off").read_text().splitlines()
+    assert off[:2] == ["OFF", "5 5 0"] and off[7] == "4 3 2 1 0"
+    # Open3D reads them, fan-triangulated: 2 + 4 triangles.
+    assert len(load_mesh(tmp_path / "p.ply", weld=False).triangles) == 6
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.obj", "p.off", "p.ply"]
+
+
+@pytest.mark.parametrize("polygons, name, match", [
+    ((np.eye(3), [np.array([0, 1, 2])]), "p.stl", "must end in one of .ply, .obj, .off"),
+    ((np.eye(3), []), "p.ply", "no faces"),
+    ((np.eye(3), [np.array([0, 1])]), "p.ply", "at least 3 corners"),
+    ((np.eye(3), [np.array([0, 1, 3])]), "p.obj", r"index vertices in \[0, 3\)"),
+    ((np.eye(3), [np.array([0.0, 1.0, 2.0])]), "p.off", "index vertices"),
+    ((np.zeros((300, 3)), [np.arange(300)]), "p.ply", "at most 255 corners"),
+    ((np.zeros((3, 2)), [np.array([0, 1, 2])]), "p.ply", "vertices must have shape"),
+])
+def test_save_polygons_bad_input(tmp_path, polygons, name, match):
+    with pytest.raises(ValueError, match=match):
+        save_polygons(polygons, tmp_path / name)
+    assert not list(tmp_path.iterdir())

@@ -17,8 +17,10 @@ def _extract(args) -> None:
     from .extract import VoroMesh
     from .io import save_mesh
 
-    mesh = VoroMesh.load(args.generators).to_open3d()
+    shape = VoroMesh.load(args.generators)
+    mesh = shape.to_open3d(clean=not args.no_clean)
     save_mesh(mesh, args.output)
+    _maybe_save_polygons(args, shape)
     _maybe_render(args, [mesh], ["VoroMesh"])
     _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
 
@@ -30,8 +32,9 @@ def _fit(args) -> None:
     source = load_mesh(args.mesh)
     shape, _ = fit(source, grid=args.grid, steps=args.steps, seed=args.seed, device=args.device,
                    progress=not args.quiet)
-    mesh = shape.to_open3d()
+    mesh = shape.to_open3d(clean=not args.no_clean)
     save_mesh(mesh, args.output)
+    _maybe_save_polygons(args, shape)
     if args.save_generators:
         shape.save(args.save_generators)
     _maybe_render(args, [source, mesh], ["input", f"VoroMesh {args.grid}^3"])
@@ -55,8 +58,9 @@ def _predict(args) -> None:
         reference = load_mesh(source)
         shape = predictor.predict_from_mesh(reference, 32 if args.grid is None else args.grid,
                                             fallback=not args.no_fallback)
-    mesh = shape.to_open3d()
+    mesh = shape.to_open3d(clean=not args.no_clean)
     save_mesh(mesh, args.output)
+    _maybe_save_polygons(args, shape)
     panels = [mesh] if reference is None else [reference, mesh]
     _maybe_render(args, panels, ["learned VoroMesh"] if reference is None else ["input", "learned VoroMesh"])
     _say(args, f"wrote {args.output} ({len(shape.generators)} generators, {len(mesh.triangles)} triangles)")
@@ -67,10 +71,19 @@ def _reconstruct(args) -> None:
     from .reconstruction import reconstruct
 
     mesh = reconstruct(args.input, args.grid, method=args.method, steps=args.steps, seed=args.seed,
-                       device=args.device, denoise=args.denoise, progress=not args.quiet)
+                       device=args.device, denoise=args.denoise, clean=not args.no_clean, progress=not args.quiet)
     save_mesh(mesh, args.output)
     _maybe_render(args, [mesh], [f"VoroMesh ({args.method}) {args.grid}^3"])
     _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
+
+
+def _polygon_path(text: str) -> str:
+    """Checked before anything runs, so that a bad suffix leaves no mesh behind either."""
+    from .io import POLYGON_SUFFIXES
+
+    if Path(text).suffix.lower() not in POLYGON_SUFFIXES:
+        raise argparse.ArgumentTypeError(f"must end in one of {', '.join(POLYGON_SUFFIXES)}, got {text!r}")
+    return text
 
 
 def _grid_or_auto(text: str):
@@ -143,6 +156,13 @@ def _maybe_render(args, meshes, titles) -> None:
         render_meshes(meshes, args.png, titles=titles)
 
 
+def _maybe_save_polygons(args, shape) -> None:
+    if getattr(args, "polygons", None):
+        from .io import save_polygons
+
+        save_polygons(shape.to_polygons(), args.polygons)
+
+
 def _say(args, message: str) -> None:
     if not getattr(args, "quiet", False):
         print(message, file=sys.stderr)
@@ -155,12 +175,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     extract = commands.add_parser("extract", help="watertight mesh from saved generators + occupancy (.npz)")
     extract.add_argument("generators", help=".npz with arrays 'generators' (n,3) and 'occupancy' (n,)")
-    _mesh_output_options(extract)
+    _mesh_output_options(extract, polygons=True)
     extract.set_defaults(run=_extract)
 
     fit = commands.add_parser("fit", help="fit a VoroMesh to a watertight mesh (direct optimisation)")
     fit.add_argument("mesh", help="input mesh (.ply, .obj, .off, .stl)")
-    _mesh_output_options(fit)
+    _mesh_output_options(fit, polygons=True)
     fit.add_argument("--grid", type=int, default=32, help="grid resolution g (g^3 nodes), default 32")
     fit.add_argument("--steps", type=int, default=400, help="Adam steps, default 400")
     fit.add_argument("--seed", type=int, default=0)
@@ -171,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     predict = commands.add_parser("predict", help="learned VoroMesh from an SDF grid or a mesh (ONNX, no torch)")
     predict.add_argument("input", help="SDF grid (.npy, or .npz with array 'sdf'; (g,g,g), negative inside, "
                                        "nodes spanning [-1,1]^3) or a mesh")
-    _mesh_output_options(predict)
+    _mesh_output_options(predict, polygons=True)
     predict.add_argument("--grid", type=int, help="SDF resolution when INPUT is a mesh, default 32 (an SDF grid "
                                                   "INPUT has its own)")
     predict.add_argument("--model", help="ONNX model (default: the shipped voro3d/models/voromesh_sdf.onnx)")
@@ -230,10 +250,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _mesh_output_options(parser) -> None:
-    """The options every command that writes a mesh shares."""
+def _mesh_output_options(parser, *, polygons: bool = False) -> None:
+    """The options every command that writes a mesh shares; ``--polygons`` where a VoroMesh is made."""
     parser.add_argument("-o", "--output", required=True, help="output mesh (.ply, .obj, .off, .stl, .glb)")
     parser.add_argument("--png", help="also render a picture here (with the input beside it where there is one)")
+    parser.add_argument("--no-clean", action="store_true",
+                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning)")
+    if polygons:
+        parser.add_argument("--polygons", type=_polygon_path,
+                            help="also write the Voronoi faces as polygons, one per face, uncleaned (.ply, .obj, .off)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
 
 

@@ -18,7 +18,7 @@ from ._validate import as_mask, as_points
 from .delaunay import circumcenters, delaunay_with_box
 from .topology import split_nonmanifold
 
-__all__ = ["DEFAULT_TOLERANCE", "VoroMesh", "extract_mesh", "voronoi_surface"]
+__all__ = ["DEFAULT_TOLERANCE", "VoroMesh", "extract_mesh", "voronoi_polygons", "voronoi_surface"]
 
 DEFAULT_TOLERANCE = 1e-7
 
@@ -48,9 +48,13 @@ class VoroMesh:
         self.generators = as_points(self.generators, "generators")
         self.occupancy = as_mask(self.occupancy, "occupancy", self.generators.shape[0])
 
-    def to_open3d(self, *, tolerance: float = DEFAULT_TOLERANCE):
-        """The watertight surface, see :func:`extract_mesh`."""
-        return extract_mesh(self.generators, self.occupancy, tolerance=tolerance)
+    def to_open3d(self, *, tolerance: float = DEFAULT_TOLERANCE, clean: bool = True):
+        """The watertight surface, cleaned unless ``clean=False``, see :func:`extract_mesh`."""
+        return extract_mesh(self.generators, self.occupancy, tolerance=tolerance, clean=clean)
+
+    def to_polygons(self, *, tolerance: float = DEFAULT_TOLERANCE):
+        """The Voronoi faces of the surface as polygons, see :func:`voronoi_polygons`."""
+        return voronoi_polygons(self.generators, self.occupancy, tolerance=tolerance)
 
     def save(self, path) -> None:
         """Write ``generators`` and ``occupancy`` to a ``.npz`` file (atomically)."""
@@ -77,7 +81,7 @@ class VoroMesh:
         return cls(arrays["generators"], arrays["occupancy"])
 
 
-def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE):
+def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE, clean: bool = True):
     """Watertight surface of a VoroMesh as an Open3D triangle mesh.
 
     Parameters
@@ -92,6 +96,11 @@ def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE)
         generator (inside if any of them is). Voronoi vertices merge only where their
         tetrahedra are exactly co-spherical (decided by CGAL's exact predicate), never by
         distance.
+    clean : bool
+        Remove slivers, tiny faces and nearly coincident Voronoi vertices with
+        :func:`voro3d.cleaning.clean` (its defaults: within 0.2 voxel of the Voronoi faces,
+        volume within 0.5%; every guarantee below checked again). ``False`` gives the Voronoi
+        faces themselves, fan-triangulated.
 
     Returns
     -------
@@ -112,11 +121,15 @@ def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE)
     from .watertight import assert_closed_manifold
 
     assert_closed_manifold(vertices, triangles)
+    if clean:
+        from .cleaning import clean_surface
+
+        vertices, triangles, _ = clean_surface(vertices, triangles)
     return to_triangle_mesh(vertices, triangles, normals=True)
 
 
 def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE):
-    """Arrays behind :func:`extract_mesh`.
+    """Arrays behind :func:`extract_mesh`: the Voronoi faces, fan-triangulated, not cleaned.
 
     Returns
     -------
@@ -124,6 +137,62 @@ def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERAN
     triangles : (t, 3) int64
         Outward-oriented; not yet checked.
     """
+    all_points, tets, cospherical, inside = _delaunay_dual(generators, occupancy, tolerance)
+    tet_ids, triangles = _dual_faces(tets, inside, all_points.shape[0])
+    vertices, vertex_of, merged = _voronoi_vertices(all_points, tets, cospherical, tet_ids)
+    triangles = vertex_of[triangles]
+    keep = (triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2]) & (triangles[:, 0] != triangles[:, 2])
+    # Without merged Voronoi vertices the surface is the dual of a marching-tetrahedra surface
+    # on a triangulated ball: a closed 2-manifold by construction. Only merges can pinch it.
+    return split_nonmanifold(vertices, triangles[keep]) if merged else (vertices, triangles[keep])
+
+
+def voronoi_polygons(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE):
+    """The surface of a VoroMesh as its Voronoi faces: one polygon per face, not triangulated.
+
+    Parameters
+    ----------
+    generators, occupancy, tolerance
+        As for :func:`extract_mesh`.
+
+    Returns
+    -------
+    vertices : (v, 3) float64
+        The Voronoi vertices of the surface (co-spherical tetrahedra give one vertex).
+    polygons : list of (k,) int64 arrays, k >= 3
+        One convex planar polygon per face between an inside and an outside cell, its corners in
+        order, counter-clockwise seen from outside (normal from the inside cell to the outside
+        one). Unlike :func:`extract_mesh`, vertices are not duplicated where inside cells meet
+        only at an edge or a corner. Write them with :func:`voro3d.io.save_polygons`.
+
+    Raises
+    ------
+    ValueError
+        As :func:`extract_mesh`.
+    """
+    all_points, tets, cospherical, inside = _delaunay_dual(generators, occupancy, tolerance)
+    tet_of, starts, nxt = _rings(tets, inside, all_points.shape[0])
+    vertices, vertex_of, _ = _voronoi_vertices(all_points, tets, cospherical, tet_of)
+    lengths = np.diff(np.append(starts, tet_of.size))
+    # Walk every ring at once: its k-th corner goes to position starts + k.
+    ring = np.empty(tet_of.size, np.int64)
+    at = starts.copy()
+    for k in range(int(lengths.max())):
+        active = lengths > k
+        ring[starts[active] + k] = at[active]
+        at[active] = nxt[at[active]]
+    corners = vertex_of[tet_of[ring]]
+    face = np.repeat(np.arange(starts.size), lengths)
+    previous = np.arange(corners.size) - 1
+    previous[starts] = starts + lengths - 1
+    keep = corners != corners[previous]  # merged (co-spherical) neighbours become one corner
+    kept = np.bincount(face[keep], minlength=starts.size)
+    pieces = np.split(corners[keep], np.cumsum(kept)[:-1])
+    return vertices, [piece for piece, count in zip(pieces, kept) if count >= 3]
+
+
+def _delaunay_dual(generators, occupancy, tolerance):
+    """Checked, snapped generators with the bounding box's: (points, tets, cospherical, inside)."""
     points = as_points(generators, "generators")
     inside = as_mask(occupancy, "occupancy", points.shape[0])
     if not np.isfinite(tolerance) or not 0 <= tolerance < 1e-2:
@@ -138,11 +207,7 @@ def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERAN
 
     all_points, tets, cospherical = delaunay_with_box(points, quantum=quantum)
     inside_all = np.concatenate([inside, np.zeros(all_points.shape[0] - points.shape[0], bool)])
-    tet_ids, triangles = _dual_faces(tets, inside_all, all_points.shape[0])
-    vertices, triangles, merged = _voronoi_vertices(all_points, tets, cospherical, tet_ids, triangles)
-    # Without merged Voronoi vertices the surface is the dual of a marching-tetrahedra surface
-    # on a triangulated ball: a closed 2-manifold by construction. Only merges can pinch it.
-    return split_nonmanifold(vertices, triangles) if merged else (vertices, triangles)
+    return all_points, tets, cospherical, inside_all
 
 
 def _prepare_generators(points, inside, tolerance):
@@ -175,15 +240,18 @@ def _prepare_generators(points, inside, tolerance):
     return points[first], merged_inside, quantum
 
 
-def _dual_faces(tets, inside, n_points):
-    """Voronoi polygons of mixed Delaunay edges, fan-triangulated.
+def _rings(tets, inside, n_points):
+    """Voronoi polygons of mixed Delaunay edges, as rings of tetrahedra.
 
     Returns
     -------
-    tet_ids : (k,) int64
-        Tetrahedron of each incidence (one per polygon corner).
-    triangles : (t, 3) int64
-        Triangles as tetrahedron ids, normal from the inside generator to the outside one.
+    tet_of : (k,) int64
+        Tetrahedron of each incidence (one per polygon corner), grouped by polygon.
+    starts : (f,) int64
+        Position in ``tet_of`` of each polygon's first incidence.
+    nxt : (k,) int64
+        Position of the next corner around the polygon, turning so that the normal points from
+        the inside generator to the outside one.
     """
     inner, outer, turn_from, turn_to, tet_of = [], [], [], [], []
     for i, j, k, l in _EDGE_PERMUTATIONS:
@@ -215,24 +283,41 @@ def _dual_faces(tets, inside, n_points):
     nxt = np.searchsorted(key, target)
     if nxt.size and (nxt.max() >= key.size or (key[nxt] != target).any()):
         raise RuntimeError("a ring of tetrahedra around a Delaunay edge is not closed")
-    first = np.flatnonzero(is_start)[face]
-    position = np.arange(order.size)
+    return tet_of, np.flatnonzero(is_start), nxt
+
+
+def _dual_faces(tets, inside, n_points):
+    """Voronoi polygons of mixed Delaunay edges, fan-triangulated.
+
+    Returns
+    -------
+    tet_ids : (k,) int64
+        Tetrahedron of each incidence (one per polygon corner).
+    triangles : (t, 3) int64
+        Triangles as tetrahedron ids, normal from the inside generator to the outside one.
+    """
+    tet_of, starts, nxt = _rings(tets, inside, n_points)
+    first = np.repeat(starts, np.diff(np.append(starts, tet_of.size)))
+    position = np.arange(tet_of.size)
     fan = (position != first) & (nxt != first)
     triangles = np.stack([tet_of[first[fan]], tet_of[fan], tet_of[nxt[fan]]], axis=1)
     return tet_of, triangles
 
 
-def _voronoi_vertices(points, tets, cospherical, tet_ids, triangles):
+def _voronoi_vertices(points, tets, cospherical, tet_ids):
     """One vertex per Voronoi vertex: tetrahedra with one circumsphere become one vertex.
 
     Co-spherical generators (a lattice) give many tetrahedra with the same circumsphere; the
     exact predicate found them, so no tolerance decides what merges and near-degenerate
-    (jittered) configurations keep their true, tiny faces. Triangles that collapse go.
+    (jittered) configurations keep their true, tiny faces. Triangles and polygon sides that
+    collapse are the callers' to drop.
 
     Returns
     -------
     vertices : (v, 3) float64
-    triangles : (t, 3) int64 indexing ``vertices``
+    vertex_of : (m,) int64
+        The vertex of each of the ``m`` tetrahedra; -1 for those that share no circumsphere with
+        a tetrahedron of ``tet_ids``.
     merged : bool
         Whether any two tetrahedra of the surface became one vertex.
     """
@@ -251,9 +336,7 @@ def _voronoi_vertices(points, tets, cospherical, tet_ids, triangles):
     vertices = circumcenters(points, tets[representative[used]])
     vertex_of = np.full(n, -1, np.int64)
     vertex_of[used] = np.arange(used.size)
-    triangles = vertex_of[label[triangles]]
-    keep = (triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2]) & (triangles[:, 0] != triangles[:, 2])
     is_mixed = np.zeros(n, bool)
     is_mixed[tet_ids] = True
     merged = used.size < np.count_nonzero(is_mixed)
-    return vertices, triangles[keep], merged
+    return vertices, vertex_of[label], merged

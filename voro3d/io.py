@@ -19,8 +19,9 @@ import numpy as np
 
 from ._validate import as_points
 
-__all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "NormalizationFrame", "atomic_path", "fit_frame", "load_mesh",
-           "load_points", "mesh_arrays", "ndc_frame", "save_mesh", "to_triangle_mesh", "vertex_normals"]
+__all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POLYGON_SUFFIXES", "NormalizationFrame", "atomic_path", "fit_frame",
+           "load_mesh", "load_points", "mesh_arrays", "ndc_frame", "save_mesh", "save_polygons", "to_triangle_mesh",
+           "vertex_normals"]
 
 # Vertices closer than this fraction of the bounding-box diagonal are one vertex. Files repeat a
 # position bit-for-bit at OBJ UV seams and in STL triangle soups, so a tiny tolerance suffices and
@@ -29,6 +30,7 @@ MERGE_TOLERANCE = 1e-9
 
 MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
 POINT_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
+POLYGON_SUFFIXES = (".ply", ".obj", ".off")
 
 
 @contextlib.contextmanager
@@ -292,6 +294,71 @@ def save_mesh(mesh, path) -> Path:
                 ok = o3d.io.write_triangle_mesh(tmp, out)
         if not ok:
             raise ValueError(f"writing {path} failed")
+    return path
+
+
+def save_polygons(polygons, path) -> Path:
+    """Write a polygon mesh (e.g. :func:`voro3d.extract.voronoi_polygons`) atomically.
+
+    Parameters
+    ----------
+    polygons : (vertices, faces)
+        ``vertices`` ``(v, 3)`` float, ``faces`` a sequence of integer index arrays of at least 3
+        corners each, in order.
+    path : str or os.PathLike
+        ``.ply`` (binary little-endian, a ``vertex_indices`` list per face, at most 255 corners),
+        ``.obj`` or ``.off``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        Unsupported suffix, no faces, a face of fewer than 3 corners, or an index outside ``vertices``.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in POLYGON_SUFFIXES:
+        raise ValueError(f"path must end in one of {', '.join(POLYGON_SUFFIXES)}, got {path.name!r}")
+    vertices, faces = polygons
+    vertices = as_points(vertices, "polygons vertices")
+    faces = [np.asarray(face) for face in faces]
+    if not faces:
+        raise ValueError("polygons has no faces")
+    if any(face.ndim != 1 or face.size < 3 for face in faces):
+        raise ValueError("polygons faces must be 1-D index arrays of at least 3 corners each")
+    sizes = np.array([face.size for face in faces])
+    corners = np.concatenate(faces)
+    if not np.issubdtype(corners.dtype, np.integer) or corners.min() < 0 or corners.max() >= vertices.shape[0]:
+        raise ValueError(f"polygons faces must index vertices in [0, {vertices.shape[0]})")
+    with atomic_path(path, suffix=suffix) as tmp, open(tmp, "wb") as handle:
+        if suffix == ".ply":
+            if sizes.max() > 255:
+                raise ValueError(f"polygons faces must have at most 255 corners for .ply, got {sizes.max()}")
+            header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {vertices.shape[0]}\n"
+                      "property double x\nproperty double y\nproperty double z\n"
+                      f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+            handle.write(header.encode("ascii"))
+            handle.write(vertices.astype("<f8").tobytes())
+            # Each face: its corner count as one byte, then its corners as little-endian int32.
+            rows = np.empty(len(faces) + 4 * corners.size, np.uint8)
+            starts = np.cumsum(np.r_[0, 1 + 4 * sizes[:-1]])
+            rows[starts] = sizes
+            corner_bytes = np.ones(rows.size, bool)
+            corner_bytes[starts] = False
+            rows[corner_bytes] = corners.astype("<i4").view(np.uint8)
+            handle.write(rows.tobytes())
+        elif suffix == ".obj":  # 1-based indices
+            lines = ["v " + " ".join(map(repr, row)) for row in vertices.tolist()]
+            lines += ["f " + " ".join(map(str, (face + 1).tolist())) for face in faces]
+            handle.write(("\n".join(lines) + "\n").encode("ascii"))
+        else:
+            lines = ["OFF", f"{vertices.shape[0]} {len(faces)} 0"] + [" ".join(map(repr, row)) for row in vertices.tolist()]
+            lines += [f"{face.size} " + " ".join(map(str, face.tolist())) for face in faces]
+            handle.write(("\n".join(lines) + "\n").encode("ascii"))
     return path
 
 

@@ -21,7 +21,7 @@ MESH_AUTO_GRID = 32
 
 
 def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                device: str | None = None, denoise=None, progress: bool = False):
+                device: str | None = None, denoise=None, clean: bool = True, progress: bool = False):
     """Watertight VoroMesh surface of a point cloud or mesh.
 
     Parameters
@@ -49,6 +49,9 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         Point clouds: the smoothing pass that moves noisy points onto the smooth surface. None
         (default) turns it on when the estimated fine-scale noise exceeds 0.13 point spacings,
         and for sparse one-sided scans; True or False force it. Meshes: must stay None.
+    clean : bool
+        Remove slivers, tiny faces and nearly coincident vertices (:func:`voro3d.cleaning.clean`,
+        every guarantee kept); ``False`` keeps the Voronoi faces as they are.
     progress : bool
         Show a progress bar over the fit's steps (the learned method has no loop to show).
 
@@ -82,16 +85,16 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         if method == "fit":
             from .fitting import fit
 
-            return fit(data, grid, progress=progress, **fit_options)[0].to_open3d()
+            return fit(data, grid, progress=progress, **fit_options)[0].to_open3d(clean=clean)
         from .infer import predict_from_mesh
 
-        return predict_from_mesh(data, grid).to_open3d()
+        return predict_from_mesh(data, grid).to_open3d(clean=clean)
     from .pointcloud import reconstruct_points, transfer_colors
 
     points, normals, colors = data
     shape, _ = reconstruct_points(points, normals, grid=grid, method=method, denoise=denoise, progress=progress,
                                   **fit_options)
-    mesh = shape.to_open3d()
+    mesh = shape.to_open3d(clean=clean)
     if colors is not None:
         import open3d as o3d
 
@@ -111,14 +114,14 @@ class VoroMeshStage:
     """
 
     def __init__(self, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                 device: str | None = None, denoise=None, progress: bool = False):
+                 device: str | None = None, denoise=None, clean: bool = True, progress: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
         if grid != "auto":
             grid = positive_int(grid, "grid", minimum=4)
         self.options = dict(grid=grid, method=method, denoise=None if denoise is None else bool(denoise),
-                            progress=progress, **fit_options)
+                            clean=bool(clean), progress=progress, **fit_options)
 
     def __call__(self, geometry):
         return reconstruct(geometry, **self.options)

@@ -52,6 +52,8 @@ class ShapeTask:
         Compute :func:`voro3d.metrics.evaluate` against the input.
     memory_limit_mb : int or None
         Address space the shape may add, in MiB (:mod:`voro3d.batch`).
+    clean : bool
+        Clean the surface (:func:`voro3d.cleaning.clean`) before writing it.
     """
 
     source: str
@@ -64,6 +66,7 @@ class ShapeTask:
     threads: int
     evaluate: bool
     memory_limit_mb: int | None
+    clean: bool = True
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ FIT_STEPS = 400
 def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, steps: int | None = None,
               seed: int = 0, model=None, workers: int | None = None, threads: int = 1, engine: str = "local",
               ray_address: str | None = None, evaluate: bool = False, timeout: float | None = None,
-              memory_limit_mb: int | None = None, suffix: str = ".ply",
+              memory_limit_mb: int | None = None, suffix: str = ".ply", clean: bool = True,
               progress: bool = False) -> BatchSummary:
     """Reconstruct every mesh under ``input_dir`` into ``output_dir``, resumably (:mod:`voro3d.batch`).
 
@@ -72,6 +72,9 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         Address space one shape may add to its worker, in MiB (:mod:`voro3d.batch`).
     suffix : str
         Output format, one of :data:`voro3d.io.MESH_SUFFIXES`.
+    clean : bool
+        Clean each surface (:func:`voro3d.cleaning.clean`) before writing it; a rerun with another
+        value redoes the shapes.
     progress : bool
         Show a tqdm progress bar over the shapes.
 
@@ -144,7 +147,7 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
 
     jobs = _plan(input_dir, output_dir, suffix)
     settings = {"method": method, "grid": grid, "steps": steps, "seed": seed,
-                "model": model, "eval": bool(evaluate), "format": suffix}
+                "model": model, "eval": bool(evaluate), "format": suffix, "clean": bool(clean)}
     output_dir.mkdir(parents=True, exist_ok=True)
     with _ResultsLog(output_dir / RESULTS_NAME) as log:
         final = {job.input_name: log.latest[job.input_name] for job in jobs
@@ -155,7 +158,7 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         # shape while the others idle at the end.
         todo = sorted((job for job in jobs if job.input_name not in final), key=lambda job: -job.source.stat().st_size)
         tasks = [ShapeTask(str(job.source.resolve()), str(job.output.resolve()), method, grid, steps, seed, model,
-                           threads, bool(evaluate), memory_limit_mb) for job in todo]
+                           threads, bool(evaluate), memory_limit_mb, bool(clean)) for job in todo]
         job_of = {task.output: job for task, job in zip(tasks, todo)}
 
         from tqdm import tqdm
@@ -234,6 +237,8 @@ def add_batch_parser(subparsers) -> argparse.ArgumentParser:
                         help="address space a shape may add to its worker (RLIMIT_AS), in MiB")
     parser.add_argument("--format", choices=[suffix[1:] for suffix in MESH_SUFFIXES], default="ply",
                         help="output format (default ply)")
+    parser.add_argument("--no-clean", action="store_true",
+                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary table")
     parser.set_defaults(run=_run_command)
     return parser
@@ -244,7 +249,8 @@ def _run_command(args) -> int:
         summary = run_batch(args.input_dir, args.output_dir, method=args.method, grid=args.grid, steps=args.steps,
                             seed=args.seed, model=args.model, workers=args.workers, threads=args.threads,
                             engine=args.engine, ray_address=args.ray_address, evaluate=args.evaluate, timeout=args.timeout,
-                            memory_limit_mb=args.memory_limit, suffix="." + args.format, progress=not args.quiet)
+                            memory_limit_mb=args.memory_limit, suffix="." + args.format, clean=not args.no_clean,
+                            progress=not args.quiet)
     except KeyboardInterrupt:
         print("voro3d batch: interrupted; finished shapes are kept, rerun the same command to resume",
               file=sys.stderr)
