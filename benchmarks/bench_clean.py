@@ -91,8 +91,7 @@ def _one(path, grid, queue):
     from voro3d.cleaning import clean_surface
     from voro3d.extract import voronoi_surface
     from voro3d.io import fit_frame, load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
-    from voro3d.cleaning import triangle_quality
-    from voro3d.metrics import evaluate
+    from voro3d.metrics import evaluate, triangle_quality
     from voro3d.queries import sdf_grid
     from voro3d.watertight import check_watertight
 

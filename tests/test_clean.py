@@ -4,7 +4,8 @@ import open3d as o3d
 import pytest
 
 from voro3d import _cgal
-from voro3d.cleaning import MAX_DISTANCE, MAX_VOLUME_CHANGE, clean, clean_surface, triangle_quality, voxel_size
+from voro3d.cleaning import MAX_DISTANCE, MAX_VOLUME_CHANGE, clean, clean_surface, voxel_size
+from voro3d.metrics import triangle_quality
 from voro3d.extract import voronoi_surface
 from voro3d.sampling import sample_surface
 from voro3d.watertight import check_watertight, self_intersections, signed_volume
@@ -128,19 +129,6 @@ def test_voxel_size_of_a_fitted_surface(fitted_sphere):
     """The estimate is the grid's voxel within the spread measured on the dev meshes."""
     (vertices, triangles), voxel, _ = fitted_sphere
     assert voxel_size(vertices, triangles) == pytest.approx(voxel, rel=0.2)
-
-
-def test_triangle_quality():
-    """An octahedron judged against itself: nothing off-normal; a flattened one has slivers."""
-    vertices = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
-    triangles = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
-    assert triangle_quality((vertices, triangles), (vertices, triangles)) == {"off_normal_share": 0.0,
-                                                                              "sliver_share": 0.0}
-    flat = vertices * [1, 1, 0.01]
-    quality = triangle_quality((flat, triangles), (vertices, triangles))
-    assert quality["sliver_share"] == 0.0 and quality["off_normal_share"] == 1.0
-    needle = vertices * [1, 0.02, 0.02]
-    assert triangle_quality((needle, triangles), (needle, triangles))["sliver_share"] == 1.0
 
 
 def tetrahedron(offset=0.0):

@@ -1,4 +1,4 @@
-"""Tests for voro3d.metrics.evaluate: CD / F1 / NC with the paper's conventions."""
+"""Tests for voro3d.metrics: CD / F1 / NC with the paper's conventions, and triangle quality."""
 
 import numpy as np
 import open3d as o3d
@@ -6,7 +6,7 @@ import pytest
 
 from voro3d.baselines import marching_cubes
 from voro3d.io import fit_frame, load_mesh, mesh_arrays
-from voro3d.metrics import evaluate
+from voro3d.metrics import evaluate, triangle_quality
 from voro3d.queries import sdf_grid
 
 
@@ -119,3 +119,26 @@ def test_dev_marching_cubes_baseline(dev_meshes, name):
     assert result["n_triangles"] == triangles.shape[0]
     same = evaluate((vertices, triangles), frame.apply_mesh(gt), n_samples=50_000)
     assert same["chamfer"] == pytest.approx(result["chamfer"], rel=1e-6)
+
+
+def test_triangle_quality():
+    """An octahedron judged against itself: nothing off-normal; a flattened one has slivers."""
+    vertices = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    triangles = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    assert triangle_quality((vertices, triangles), (vertices, triangles)) == {"off_normal_share": 0.0,
+                                                                              "sliver_share": 0.0}
+    flat = vertices * [1, 1, 0.01]
+    quality = triangle_quality((flat, triangles), (vertices, triangles))
+    assert quality["sliver_share"] == 0.0 and quality["off_normal_share"] == 1.0
+    needle = vertices * [1, 0.02, 0.02]
+    assert triangle_quality((needle, triangles), (needle, triangles))["sliver_share"] == 1.0
+
+
+@pytest.mark.parametrize("options, match", [({"max_angle": 0}, "max_angle"), ({"max_angle": 91}, "max_angle"),
+                                            ({"sliver_angle": -1}, "sliver_angle"), ({"sliver_angle": np.nan}, "sliver_angle")])
+def test_triangle_quality_bad_options(options, match):
+    octahedron = o3d.geometry.TriangleMesh.create_octahedron()
+    with pytest.raises(ValueError, match=match):
+        triangle_quality(octahedron, octahedron, **options)
+    with pytest.raises(ValueError, match="pred has no triangles"):
+        triangle_quality((np.eye(3), np.zeros((0, 3), int)), octahedron)

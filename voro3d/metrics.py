@@ -1,4 +1,5 @@
-"""Surface accuracy as the VoroMesh paper reports it: Chamfer distance, F1 and normal consistency.
+"""Surface accuracy as the VoroMesh paper reports it (Chamfer distance, F1, normal consistency),
+and how the triangles look (:func:`triangle_quality`).
 
 Conventions follow the paper's evaluation code (itself NDC's): both meshes are placed in the NDC
 frame of the ground truth (bounding box centred, diagonal 1); 100,000 area-uniform samples are
@@ -13,7 +14,7 @@ from ._validate import positive_int
 from .io import mesh_arrays, ndc_frame
 from .sampling import sample_surface
 
-__all__ = ["CHAMFER_FACTOR", "evaluate"]
+__all__ = ["CHAMFER_FACTOR", "evaluate", "triangle_quality"]
 
 # The paper's tables print CD multiplied by this factor.
 CHAMFER_FACTOR = 1e5
@@ -84,3 +85,57 @@ def evaluate(pred, gt, *, n_samples: int = 100_000, seed: int = 0, delta: float 
         "n_vertices": int(pred_vertices.shape[0]),
         "n_triangles": int(pred_triangles.shape[0]),
     }
+
+
+def triangle_quality(pred, gt, *, max_angle: float = 30.0, sliver_angle: float = 5.0) -> dict:
+    """How a surface's triangles look: turned away from the true surface, or thin.
+
+    Parameters
+    ----------
+    pred, gt : open3d.geometry.TriangleMesh or (vertices, triangles)
+        The surface to judge and the true surface, in the same units.
+    max_angle : float, keyword-only
+        A triangle is off-normal when its normal is more than this (degrees) from the normal of
+        ``gt`` at the point of ``gt`` nearest its centroid, unsigned as NC (a triangle of zero
+        area has no normal and counts as off-normal).
+    sliver_angle : float, keyword-only
+        A triangle is a sliver when its smallest angle is under this (degrees).
+
+    Returns
+    -------
+    dict
+        ``off_normal_share``, ``sliver_share`` : float -- fractions of ``pred``'s triangles.
+
+    Raises
+    ------
+    ValueError
+        A mesh without triangles, ``max_angle`` outside (0, 90] or ``sliver_angle`` outside (0, 60].
+    """
+    import open3d as o3d
+
+    vertices, triangles = mesh_arrays(pred, "pred")
+    gt_vertices, gt_triangles = mesh_arrays(gt, "gt")
+    if not 0 < max_angle <= 90:
+        raise ValueError(f"max_angle must be in (0, 90] degrees, got {max_angle}")
+    if not 0 < sliver_angle <= 60:
+        raise ValueError(f"sliver_angle must be in (0, 60] degrees, got {sliver_angle}")
+    corners = vertices[triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    gt_normals = np.cross(gt_vertices[gt_triangles[:, 1]] - gt_vertices[gt_triangles[:, 0]],
+                          gt_vertices[gt_triangles[:, 2]] - gt_vertices[gt_triangles[:, 0]])
+    gt_normals /= np.maximum(np.linalg.norm(gt_normals, axis=1, keepdims=True), 1e-300)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(gt_vertices.astype(np.float32)), o3d.core.Tensor(gt_triangles.astype(np.uint32)))
+    nearest = scene.compute_closest_points(o3d.core.Tensor(corners.mean(axis=1).astype(np.float32)))
+    truth = gt_normals[nearest["primitive_ids"].numpy().astype(np.int64)]
+    cosine = np.abs(np.einsum("ij,ij->i", normals, truth)) / np.maximum(length, 1e-300)
+    off = (length == 0) | (cosine < np.cos(np.radians(max_angle)))
+    sides = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2)  # side k joins corners k and k+1
+    smallest = np.full(triangles.shape[0], 180.0)
+    for k in range(3):
+        a, b, c = sides[:, k], sides[:, (k + 1) % 3], sides[:, (k + 2) % 3]  # angle opposite side a
+        with np.errstate(invalid="ignore", divide="ignore"):
+            angle = np.degrees(np.arccos(np.clip((b**2 + c**2 - a**2) / (2 * b * c), -1, 1)))
+        smallest = np.minimum(smallest, np.nan_to_num(angle, nan=0.0))
+    return {"off_normal_share": float(off.mean()), "sliver_share": float((smallest < sliver_angle).mean())}
