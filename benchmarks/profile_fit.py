@@ -13,6 +13,9 @@ Three tables:
   (``fitting._CPU_KERNEL = False``, with Open3D's kNN search) and through the compiled kernel
   (``voro3d._fitkernel``), interleaved so that both see the same load: wall and CPU seconds of
   the whole fit, final loss, CD / F1 / NC and watertightness of the extracted mesh.
+* ``budget`` (``--budget-study``): the fit (compiled kernel) with fewer surface samples per grid
+  face and/or a smaller batch fraction than the official 150 and 0.2, which cut the work per step
+  and per kNN search in proportion: seconds, final loss, CD / F1 / NC, watertightness.
 * ``refresh`` (``--refresh-study``): the fit redone with the candidates searched again every step
   (``REFRESH_VOXELS = 0``, the exact loss) and at other thresholds; the final loss is recomputed
   exactly (fresh kNN search) so the policies are compared on equal terms.
@@ -22,7 +25,8 @@ so the load average at start and end is recorded with them.
 Writes ``<out>/profile_fit.{md,json}``.
 
     python benchmarks/profile_fit.py [--meshes sphere organic_bunny.off] [--grids 32 64]
-        [--steps-mesh organic_bunny.off] [--refresh-study] [--kernel-study] [--out out/profile_fit]
+        [--steps-mesh organic_bunny.off] [--refresh-study] [--kernel-study] [--budget-study]
+        [--out out/profile_fit]
 """
 from __future__ import annotations
 
@@ -34,13 +38,14 @@ import platform
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from voro3d import fitting as fit_module
 from voro3d.extract import extract_mesh
 from voro3d.generators import initial_generators
 from voro3d.io import fit_frame, load_mesh, mesh_arrays
-from voro3d.loss import bisector_distance, bisector_pairs, voroloss
+from voro3d.loss import PAIR_BLOCK, bisector_distance, bisector_pairs, voroloss
 from voro3d.metrics import evaluate
 from voro3d.sampling import sample_surface
 from voro3d.watertight import check_watertight
@@ -92,15 +97,15 @@ def step_row(name, mesh, grid, steps):
     parts = dict.fromkeys(["window", "pairs", "loss_fwd_bwd", "adam_clamp_displacement", "search"], 0.0)
     generators_t = loop.generators_t
     optimizer = fit_module._Adam(generators_t)
-    offsets = torch.randint(loop.n_samples, (steps,), generator=torch.Generator().manual_seed(0)).tolist()
+    offsets = np.random.default_rng(0).integers(loop.n_samples, size=steps).tolist()
     refresh = fit_module.REFRESH_VOXELS * 2.0 / (grid - 1)
     searches = 0
     try:
         for step in range(steps):
             generators_t.grad = None
-            for start in range(0, loop.batch, fit_module.PAIR_BLOCK):
+            for start in range(0, loop.batch, PAIR_BLOCK):
                 t0 = time.perf_counter()
-                window = slice(offsets[step] + start, offsets[step] + min(start + fit_module.PAIR_BLOCK, loop.batch))
+                window = slice(offsets[step] + start, offsets[step] + min(start + PAIR_BLOCK, loop.batch))
                 samples_t = loop.samples_t[:, window].contiguous()
                 t1 = time.perf_counter()
                 nearest, other = bisector_pairs(samples_t, generators_t.detach(), loop.candidates_t[:, window])
@@ -157,6 +162,25 @@ def kernel_rows(name, mesh, grid, steps, repeats):
     return rows
 
 
+def budget_rows(name, mesh, grid, steps, budgets):
+    rows = []
+    for samples_per_face, batch_fraction in budgets:
+        load = os.getloadavg()[0]
+        cpu = time.process_time()
+        voromesh, info = fit_module.fit(mesh, grid, steps=steps, n_samples=int(samples_per_face * grid**2),
+                                        batch_fraction=batch_fraction)
+        cpu = time.process_time() - cpu
+        surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+        metrics = evaluate(surface, mesh)
+        rows.append({"mesh": name, "grid": grid, "samples_per_face": samples_per_face, "batch_fraction": batch_fraction,
+                     "fit_total_s": info.total_seconds, "fit_cpu_s": cpu, "searches": info.candidate_searches,
+                     "final_loss": info.final_loss, "cd_x1e5": metrics["chamfer_x1e5"], "f1": metrics["f1"],
+                     "nc": metrics["nc"], "watertight": check_watertight(surface, self_intersection=False).watertight,
+                     "load_before": load})
+        print(rows[-1], flush=True)
+    return rows
+
+
 def refresh_rows(name, mesh, grid, steps, thresholds):
     vertices, triangles = mesh_arrays(mesh)
     frame = fit_frame((vertices, triangles))
@@ -201,6 +225,10 @@ def main():
     parser.add_argument("--kernel-study", action="store_true", help="torch step vs compiled kernel, interleaved")
     parser.add_argument("--kernel-grids", nargs="+", type=int, default=[32, 64])
     parser.add_argument("--kernel-repeats", type=int, default=1)
+    parser.add_argument("--budget-study", action="store_true", help="fewer samples per face / smaller batches")
+    parser.add_argument("--budget-grids", nargs="+", type=int, default=[32, 64])
+    parser.add_argument("--budgets", nargs="+", default=["150:0.2", "100:0.2", "75:0.2", "150:0.1"],
+                        help="samples_per_face:batch_fraction pairs")
     parser.add_argument("--refresh-grids", nargs="+", type=int, default=[32, 64])
     parser.add_argument("--refresh-thresholds", nargs="+", type=float, default=[0.0, 0.5, 1.0, 2.0, float("inf")])
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "profile_fit")
@@ -208,7 +236,7 @@ def main():
 
     result = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "torch": torch.__version__,
                           "load_average_at_start": os.getloadavg()},
-              "phases": [], "steps": [], "kernel": [], "refresh": []}
+              "phases": [], "steps": [], "kernel": [], "budget": [], "refresh": []}
     meshes = {name: load(name) for name in dict.fromkeys(args.meshes + [args.steps_mesh])}
     for grid in args.grids:
         for name in args.meshes:
@@ -220,6 +248,11 @@ def main():
         for grid in args.kernel_grids:
             for name in args.meshes:
                 result["kernel"] += kernel_rows(name, meshes[name], grid, args.steps, args.kernel_repeats)
+    if args.budget_study:
+        budgets = [(float(text.split(":")[0]), float(text.split(":")[1])) for text in args.budgets]
+        for grid in args.budget_grids:
+            for name in args.meshes:
+                result["budget"] += budget_rows(name, meshes[name], grid, args.steps, budgets)
     if args.refresh_study:
         for grid in args.refresh_grids:
             for name in args.meshes:
@@ -232,6 +265,7 @@ def main():
     text += "\n".join(markdown(title, result[key]) for key, title in
                       (("phases", "Phases (wall-clock seconds)"), ("steps", "Loop parts (wall-clock seconds)"),
                        ("kernel", "Torch step vs compiled kernel (interleaved)"),
+                       ("budget", "Samples per face and batch fraction vs quality"),
                        ("refresh", "Candidate-search threshold vs quality")))
     (args.out / "profile_fit.md").write_text(text)
     print(text)

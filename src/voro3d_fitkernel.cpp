@@ -20,10 +20,10 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
-#include <utility>
 #include <string>
 #include <system_error>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace py = pybind11;
@@ -282,7 +282,6 @@ double voroloss(const py::object& samples_in, const py::object& generators_in, c
              : voroloss_impl<double, std::int64_t>(samples, generators, candidates, grad_in, threads);
 }
 
-
 // Generators bucketed in a uniform grid of cubic cells (CSR: cell -> generator indices).
 struct CellGrid {
   double origin[3];
@@ -297,7 +296,7 @@ struct CellGrid {
   }
 };
 
-// At most 64 cells per generator (a fit's band of generators has 14-50 at grids 32-128) and 2^24
+// At most 64 cells per generator (a fit's band of generators has at most 14-50 at grids 32-128) and 2^24
 // cells (128 MB of offsets): a finer request is coarsened, which only costs speed, while empty
 // cells would cost a search ring after ring of nothing.
 constexpr double kCellsPerGenerator = 64.0;

@@ -1,6 +1,8 @@
 """The compiled fit step voro3d._fitkernel: the torch VoroLoss's value and gradient, the exact kNN
 search, thread-count independence, every input check, the GIL released, and a fit through it as
 good as through torch."""
+import subprocess
+import sys
 import threading
 import time
 
@@ -9,8 +11,9 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from voro3d import _fitkernel
+from voro3d import _cpufit, _fitkernel
 from voro3d import fitting as fit_module
+from voro3d import loss as loss_module
 from voro3d.extract import extract_mesh
 from voro3d.generators import initial_generators
 from voro3d.loss import knn_candidates, voroloss
@@ -241,3 +244,43 @@ def test_fit_is_the_same_for_a_seed_whatever_the_threads():
         torch.set_num_threads(threads)
     np.testing.assert_array_equal(again.generators, first.generators)
     np.testing.assert_array_equal(again.occupancy, first.occupancy)
+
+
+def test_cpu_fit_imports_no_torch():
+    script = ("import sys, numpy as np\n"
+              "from voro3d.fitting import fit_samples\n"
+              "rng = np.random.default_rng(0)\n"
+              "x = rng.normal(size=(3000, 3)); x = 0.9 * x / np.linalg.norm(x, axis=1, keepdims=True)\n"
+              "shape, info = fit_samples(x, lambda p: np.linalg.norm(p, axis=1) < 0.9, 8, steps=5)\n"
+              "print(shape.occupancy.any(), 'torch' in sys.modules)")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["True", "False"]
+
+
+def test_default_k_is_the_loss_one():
+    assert fit_module.DEFAULT_K == loss_module.DEFAULT_K
+
+
+def test_numpy_adam_matches_torch_optim():
+    start = np.random.default_rng(0).normal(size=(50, 3))
+    ours, theirs = start.copy(), torch.tensor(start, requires_grad=True)
+    adam = _cpufit.NumpyAdam(ours)
+    reference = torch.optim.Adam([theirs], lr=0.01, foreach=False)
+    schedule = torch.optim.lr_scheduler.MultiStepLR(reference, milestones=[3, 6], gamma=0.5)
+    for step in range(10):
+        adam.step(2 * ours + step, 0.01 * 0.5 ** sum(step >= m for m in (3, 6)))
+        theirs.grad = None
+        (theirs.square().sum() + theirs.sum() * step).backward()
+        reference.step()
+        schedule.step()
+    np.testing.assert_allclose(ours, theirs.detach().numpy(), rtol=1e-12, atol=1e-14)
+
+
+def test_cpu_threads_follow_torch_then_the_environment(monkeypatch):
+    assert _cpufit.cpu_threads() == torch.get_num_threads()
+    monkeypatch.delitem(sys.modules, "torch")
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert _cpufit.cpu_threads() == 3
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert _cpufit.cpu_threads() >= 1

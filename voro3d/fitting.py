@@ -10,14 +10,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
-from . import _fitkernel
+from ._cpufit import KernelLoop, cpu_threads, spatial_order
 from ._validate import as_points, positive_int
 from .extract import VoroMesh
 from .generators import initial_generators
 from .io import fit_frame, mesh_arrays
-from .loss import DEFAULT_K, PAIR_BLOCK, bisector_distance, bisector_pairs, nearest_indices
 from .occupancy import label_cells
 from .queries import InsideOutside
 from .sampling import sample_surface
@@ -36,10 +34,14 @@ SAMPLES_PER_FACE = 150
 # no second search the final loss is 1.4-6.4 times higher and CD 3-8% worse.
 REFRESH_VOXELS = 1.0
 
-# On CPU each step runs the compiled kernel (voro3d._fitkernel: loss and gradient in one threaded
-# pass); False runs the torch path there too, the reference that CUDA runs, so that
-# benchmarks/profile_fit.py and the tests can compare the two.
+# On CPU the fit runs voro3d._cpufit.KernelLoop (the compiled kernel, no torch); False runs the
+# torch loop there too, the reference that CUDA runs, so that benchmarks/profile_fit.py and the
+# tests can compare the two.
 _CPU_KERNEL = True
+
+# voro3d.loss.DEFAULT_K (the official code's nearest generator and 10 more), repeated because
+# voro3d.loss imports torch, which a CPU fit does without; tests/test_fitkernel.py checks they agree.
+DEFAULT_K = 11
 
 
 @dataclass(frozen=True)
@@ -145,12 +147,11 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     after a generator has moved ``REFRESH_VOXELS`` voxels, the nearest generator and bisector
     being re-ranked among them at every step; the loss gradient is written by hand.
 
-    On CPU each step's loss and gradient come from the compiled kernel ``voro3d._fitkernel``
-    (one pass over the candidates, on as many threads as ``torch.get_num_threads()`` says;
-    its gradient is summed in fixed point, so a seed gives the same bits on any thread count),
-    and the few torch operations left (Adam) run on one thread, restoring the caller's setting
-    afterwards. On CUDA the loop runs the torch path, which the kernel is tested against. The kNN
-    searches use every core.
+    On CPU the loop does without torch: each step's loss and gradient and the kNN searches come
+    from the compiled kernel ``voro3d._fitkernel``, on ``torch.get_num_threads()`` threads when
+    torch is loaded, else ``OMP_NUM_THREADS``, else every CPU the process may use; the gradient
+    is summed in fixed point, so a seed gives the same bits on any thread count. On CUDA the
+    loop runs in torch, the reference the kernel is tested against.
     """
     start = time.perf_counter()
     grid = positive_int(grid, "grid", minimum=2)
@@ -203,22 +204,30 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         raise ValueError(f"batch_fraction must be in (0, 1], got {batch_fraction}")
     samples = as_points(samples, "samples", min_count=4)
     milestones = sorted(positive_int(step, "milestones") for step in milestones)
-    torch_device = _device(device)
+    device = _device(device)
 
     generators = initial_generators(samples, grid)
-    threads = torch.get_num_threads()
-    loop = _FitLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, device=torch_device,
-                    threads=threads)
-    initialised = time.perf_counter()
-
-    if torch_device.type == "cpu":
-        torch.set_num_threads(1)
-    try:
-        losses = loop.run(steps, lr=lr, milestones=milestones, gamma=gamma, seed=seed,
-                          refresh_distance=REFRESH_VOXELS * 2.0 / (grid - 1), progress=progress)
+    schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
+                    refresh_distance=REFRESH_VOXELS * 2.0 / (grid - 1), progress=progress)
+    if device == "cpu" and _CPU_KERNEL:
+        loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=cpu_threads())
+        initialised = time.perf_counter()
+        losses = loop.run(steps, **schedule)
         final_loss = loop.loss()
-    finally:
-        torch.set_num_threads(threads)
+    else:
+        import torch
+
+        loop = _FitLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
+                        device=torch.device(device))
+        initialised = time.perf_counter()
+        threads = torch.get_num_threads()
+        if device == "cpu":
+            torch.set_num_threads(1)
+        try:
+            losses = loop.run(steps, **schedule)
+            final_loss = loop.loss()
+        finally:
+            torch.set_num_threads(threads)
     generators = loop.generators()
     optimised = time.perf_counter()
 
@@ -234,7 +243,12 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     return result, info
 
 
-def _device(device) -> torch.device:
+def _device(device) -> str:
+    """``device`` checked: ``"cpu"``, which needs no torch, or the name of an available CUDA device."""
+    if device == "cpu":
+        return "cpu"
+    import torch
+
     try:
         torch_device = torch.device(device)
     except (RuntimeError, TypeError) as error:
@@ -243,7 +257,7 @@ def _device(device) -> torch.device:
         raise ValueError(f"device {device!r} was asked for but CUDA is not available")
     if torch_device.type not in ("cpu", "cuda"):
         raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
-    return torch_device
+    return str(torch_device)
 
 
 class _FitLoop:
@@ -256,58 +270,62 @@ class _FitLoop:
     """
 
     def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int,
-                 batch_fraction: float, device: torch.device, threads: int = 1):
+                 batch_fraction: float, device: torch.device):
+        import torch
+
         self.n_samples = samples.shape[0]
-        self.kernel = device.type == "cpu" and _CPU_KERNEL
-        self.threads = threads
         self.batch = max(1, int(round(batch_fraction * self.n_samples)))
         wrapped = np.concatenate([samples, samples[: self.batch]])
         self.samples_t = torch.tensor(wrapped.T, dtype=torch.float32, device=device).contiguous()
         self.generators_t = torch.nn.Parameter(
             torch.tensor(generators.T, dtype=torch.float32, device=device).contiguous())
-        self.grad_t = torch.zeros_like(self.generators_t)
         self.k = min(k, generators.shape[0])
-        # KD-tree queries in spatial order run 1.5 times faster than in the samples' random
-        # order (the tree's nodes stay in cache); the samples never move, so sort them once.
-        voxel = np.floor((samples + 1.0) * (grid - 1) / 2.0).astype(np.int64)
-        order = np.argsort((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2], kind="stable")
+        # The samples never move, so they are sorted for the KD-tree once.
+        order = spatial_order(samples, grid)
         self.search_samples = np.ascontiguousarray(samples[order], dtype=np.float32)
-        self.voxel = 2.0 / (grid - 1)
         self.search_rank = torch.empty(order.size, dtype=torch.int64)
         self.search_rank[torch.from_numpy(order)] = torch.arange(order.size)
-        # Rows of the search's answer for the samples' order with the first window repeated at the
-        # end: one gather (a scatter by ``order`` took 1.6 times as long).
-        self.search_take = np.concatenate([self.search_rank.numpy(), self.search_rank.numpy()[: self.batch]])
         self.searches = 0
         self._search()
 
     def _search(self):
         """kNN candidates of every sample at the current generators."""
+        import torch
+
+        from .loss import nearest_indices
+
         sites = self.generators_t.detach()
         positions = np.ascontiguousarray(sites.t().cpu().numpy())
-        if self.kernel:
-            # The kernel's exact grid search, 1.4-1.8 times faster than Open3D's KD-tree here, and
-            # sample-major candidates, which the kernel reads a row at a time.
-            found = _fitkernel.nearest_generators(self.search_samples, positions, self.k, cell=self.voxel,
-                                                  threads=self.threads)
-            self.candidates_t = torch.from_numpy(found.take(self.search_take, axis=0)).t()
-        else:
-            found = torch.from_numpy(nearest_indices(self.search_samples, positions, self.k))
-            # Back to the samples' order, coordinate-major, with the first window repeated at the end.
-            found = found.index_select(0, self.search_rank).t()
-            self.candidates_t = torch.cat([found, found[:, : self.batch]], dim=1).to(sites.device)
+        found = torch.from_numpy(nearest_indices(self.search_samples, positions, self.k))
+        # Back to the samples' order, coordinate-major, with the first window repeated at the end.
+        found = found.index_select(0, self.search_rank).t()
+        self.candidates_t = torch.cat([found, found[:, : self.batch]], dim=1).to(sites.device)
         self.searched_at = sites.clone()
         self.searches += 1
 
     def run(self, steps, *, lr, milestones, gamma, seed, refresh_distance, progress) -> np.ndarray:
+        import torch
         from tqdm.auto import tqdm
+
+        from .loss import PAIR_BLOCK, bisector_distance, bisector_pairs
 
         generators_t = self.generators_t
         optimizer = _Adam(generators_t)
-        offsets = torch.randint(self.n_samples, (steps,), generator=torch.Generator().manual_seed(seed)).tolist()
+        # The batches of voro3d._cpufit.KernelLoop, so that a seed gives the same ones on CPU and CUDA.
+        offsets = np.random.default_rng(seed).integers(self.n_samples, size=steps).tolist()
         losses = torch.empty(steps, dtype=torch.float32, device=generators_t.device)
         for step in tqdm(range(steps), desc="VoroMesh fit", disable=not progress, leave=False):
-            loss = self._loss_and_grad(offsets[step])
+            generators_t.grad = None
+            loss = torch.zeros((), device=generators_t.device)
+            # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at
+            # a time: their temporaries then stay in cache instead of being allocated afresh.
+            for start in range(0, self.batch, PAIR_BLOCK):
+                window = slice(offsets[step] + start, offsets[step] + min(start + PAIR_BLOCK, self.batch))
+                samples_t = self.samples_t[:, window].contiguous()
+                nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
+                block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
+                block_loss.backward()
+                loss += block_loss.detach()
             rate = lr * gamma ** bisect.bisect_right(milestones, step)
             with torch.no_grad():
                 optimizer.step(rate)
@@ -318,34 +336,12 @@ class _FitLoop:
                 self._search()
         return losses.cpu().numpy().astype(np.float64)
 
-    def _loss_and_grad(self, offset: int):
-        """Loss of the batch at ``offset``, with its gradient written to ``generators_t.grad``."""
-        generators_t = self.generators_t
-        if self.kernel:
-            window = slice(offset, offset + self.batch)
-            generators_t.grad = self.grad_t
-            return _fitkernel.voroloss(self.samples_t.numpy().T[window], generators_t.detach().numpy().T,
-                                       self.candidates_t.numpy().T[window], self.grad_t.numpy().T,
-                                       threads=self.threads)
-        generators_t.grad = None
-        loss = torch.zeros((), device=generators_t.device)
-        # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at
-        # a time: their temporaries then stay in cache instead of being allocated afresh.
-        for start in range(0, self.batch, PAIR_BLOCK):
-            window = slice(offset + start, offset + min(start + PAIR_BLOCK, self.batch))
-            samples_t = self.samples_t[:, window].contiguous()
-            nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
-            block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
-            block_loss.backward()
-            loss += block_loss.detach()
-        return loss
-
     def loss(self) -> float:
         """VoroLoss over all samples with the current candidates."""
-        if self.kernel:
-            return _fitkernel.voroloss(self.samples_t.numpy().T[: self.n_samples],
-                                       self.generators_t.detach().numpy().T,
-                                       self.candidates_t.numpy().T[: self.n_samples], threads=self.threads)
+        import torch
+
+        from .loss import bisector_distance, bisector_pairs
+
         with torch.no_grad():
             samples_t = self.samples_t[:, : self.n_samples]
             sites = self.generators_t.detach()
@@ -366,18 +362,22 @@ class _Adam:
     BETA1, BETA2, EPS = 0.9, 0.999, 1e-8
 
     def __init__(self, parameter: torch.Tensor):
+        import torch
+
         self.parameter = parameter
         self.mean = torch.zeros_like(parameter)
         self.square = torch.zeros_like(parameter)
         self.steps = 0
 
-    @torch.no_grad()
     def step(self, lr: float) -> None:
+        import torch
+
         self.steps += 1
-        grad = self.parameter.grad
-        self.mean.lerp_(grad, 1 - self.BETA1)
-        self.square.mul_(self.BETA2).addcmul_(grad, grad, value=1 - self.BETA2)
-        correction1 = 1 - self.BETA1**self.steps
-        correction2 = 1 - self.BETA2**self.steps
-        denominator = (self.square.sqrt() / correction2**0.5).add_(self.EPS)
-        self.parameter.addcdiv_(self.mean, denominator, value=-lr / correction1)
+        with torch.no_grad():
+            grad = self.parameter.grad
+            self.mean.lerp_(grad, 1 - self.BETA1)
+            self.square.mul_(self.BETA2).addcmul_(grad, grad, value=1 - self.BETA2)
+            correction1 = 1 - self.BETA1**self.steps
+            correction2 = 1 - self.BETA2**self.steps
+            denominator = (self.square.sqrt() / correction2**0.5).add_(self.EPS)
+            self.parameter.addcdiv_(self.mean, denominator, value=-lr / correction1)
