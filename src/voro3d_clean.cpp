@@ -43,9 +43,10 @@
 #include <cmath>
 #include <cstdint>
 #include <deque>
-#include <stdexcept>
 #include <functional>
+#include <memory>
 #include <queue>
+#include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
@@ -242,6 +243,32 @@ struct Merges {
   }
 };
 
+// One change of a cleaning run, enough to make it again on the same input (replay_clean).
+struct Operation {
+  enum Kind : std::uint8_t { kPass, kCollapse, kFlip } kind;
+  std::uint32_t a = 0, b = 0;  // collapse: the vertex merged away and the one kept; flip: the edge, a -> b
+  Point placement;             // collapse: where the kept vertex goes
+  std::uint32_t first = 0, last = 0;  // the new bounds of its faces: CleanLog::bounds[first:last]
+  double volume = 0;
+};
+
+// The changes of one clean_surface call, in order, and what replaying them needs.
+struct CleanLog {
+  std::size_t n_vertices = 0, n_triangles = 0;
+  double max_distance = 0, max_volume_change = 0;  // per pass
+  double flip_margin = 0;
+  std::vector<Operation> operations;
+  std::vector<std::pair<std::uint32_t, double>> bounds;  // (face, bound)
+
+  void add(Operation::Kind kind, std::uint32_t a, std::uint32_t b, const Point& placement,
+           const std::vector<std::pair<Face, double>>& face_bounds, double volume) {
+    Operation operation{kind, a, b, placement, static_cast<std::uint32_t>(bounds.size()), 0, volume};
+    for (const auto& [face, bound] : face_bounds) bounds.emplace_back(face.idx(), bound);
+    operation.last = static_cast<std::uint32_t>(bounds.size());
+    operations.push_back(operation);
+  }
+};
+
 // What the collapse filter and visitor share: frozen vertices, face bounds, the last accepted bound.
 struct State {
   const std::vector<char>* frozen;
@@ -251,10 +278,12 @@ struct State {
   double volume_change = 0;  // signed, of the changes made so far
   // The last accepted collapse: its edge, the new bound of each face it keeps, its volume change.
   Vertex accepted_v0, accepted_v1;
+  Point accepted_placement;
   std::vector<std::pair<Face, double>> accepted;
   double accepted_volume = 0;
   bool unaccounted = false;  // a collapse made without bound_collapse's consent (a bug)
   Merges merges;
+  CleanLog* log = nullptr;
   // Workspace of bound_collapse.
   Patch patch;
   std::vector<Vertex> local;
@@ -353,6 +382,7 @@ bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const 
   }
   state->accepted_v0 = v0;
   state->accepted_v1 = v1;
+  state->accepted_placement = placement;
   return true;
 }
 
@@ -407,6 +437,8 @@ struct AfterCollapse : SMS::Edge_collapse_visitor_base<Mesh> {
     }
     for (const auto& [face, bound] : state->accepted) state->bound[face] = bound;
     state->volume_change += state->accepted_volume;
+    state->log->add(Operation::kCollapse, gone.idx(), kept.idx(), state->accepted_placement, state->accepted,
+                    state->accepted_volume);
   }
 };
 
@@ -415,6 +447,18 @@ Vector normal_of(const Mesh& mesh, Face f, Vertex moved, const Point& placement)
   int k = 0;
   for (const Vertex v : mesh.vertices_around_face(mesh.halfedge(f))) p[k++] = v == moved ? placement : mesh.point(v);
   return CGAL::cross_product(p[1] - p[0], p[2] - p[0]);
+}
+
+// Whether collapsing the edge of `h` to `placement` turns a face it keeps by 90 degrees or more.
+bool turns_a_face(const Mesh& mesh, Mesh::Halfedge_index h, const Point& placement) {
+  for (const Vertex moved : {mesh.source(h), mesh.target(h)}) {
+    for (const auto around : mesh.halfedges_around_target(mesh.halfedge(moved))) {
+      const Face f = mesh.face(around);
+      if (f == mesh.face(h) || f == mesh.face(mesh.opposite(h))) continue;
+      if (normal_of(mesh, f, moved, mesh.point(moved)) * normal_of(mesh, f, moved, placement) <= 0) return true;
+    }
+  }
+  return false;
 }
 
 // Merges the ends of edges shorter than `length` at their midpoint, shortest first, under the rules
@@ -442,20 +486,13 @@ std::size_t merge_close_vertices(Mesh& mesh, State& state, double length) {
     const Vertex gone = mesh.source(h), kept = mesh.target(h);
     if (!CGAL::Euler::does_satisfy_link_condition(e, mesh)) continue;
     const Point middle = CGAL::midpoint(mesh.point(gone), mesh.point(kept));
-    bool turned = false;
-    for (const Vertex moved : {gone, kept}) {
-      for (const auto around : mesh.halfedges_around_target(mesh.halfedge(moved))) {
-        const Face f = mesh.face(around);
-        if (f == mesh.face(h) || f == mesh.face(mesh.opposite(h))) continue;
-        turned = turned || normal_of(mesh, f, moved, mesh.point(moved)) * normal_of(mesh, f, moved, middle) <= 0;
-      }
-    }
-    if (turned || !bound_collapse(mesh, &state, gone, kept, middle)) continue;
+    if (turns_a_face(mesh, h, middle) || !bound_collapse(mesh, &state, gone, kept, middle)) continue;
     CGAL::Euler::collapse_edge(e, mesh);
     mesh.point(kept) = middle;
     state.merges.parent[gone.idx()] = kept.idx();
     for (const auto& [face, bound] : state.accepted) state.bound[face] = bound;
     state.volume_change += state.accepted_volume;
+    state.log->add(Operation::kCollapse, gone.idx(), kept.idx(), middle, state.accepted, state.accepted_volume);
     ++merges;
     for (const auto around : mesh.halfedges_around_target(mesh.halfedge(kept))) {
       const auto edge = mesh.edge(around);
@@ -476,6 +513,27 @@ double smallest_angle(const Point& a, const Point& b, const Point& c) {
   return std::acos(std::clamp((s1 + s2 - opposite) / (2 * std::sqrt(s1 * s2)), -1.0, 1.0));
 }
 
+// Whether flipping the edge of `h` raises the smallest angle of its two triangles by more than
+// `margin` radians with the new pair within max_distance and the volume budget (see the top of the
+// file); its new faces' bound and the volume change into `bound` and `volume`.
+bool bound_flip(const Mesh& mesh, const State& state, Mesh::Halfedge_index h, double margin, double& bound,
+                double& volume) {
+  const auto o = mesh.opposite(h);
+  const Vertex s = mesh.source(h), t = mesh.target(h);
+  const Vertex a = mesh.target(mesh.next(h)), b = mesh.target(mesh.next(o));
+  if ((*state.frozen)[s.idx()] || (*state.frozen)[t.idx()] || a == b) return false;
+  if (mesh.halfedge(a, b) != Mesh::null_halfedge()) return false;
+  const Point &ps = mesh.point(s), &pt = mesh.point(t), &pa = mesh.point(a), &pb = mesh.point(b);
+  const double old_angle = std::min(smallest_angle(ps, pt, pa), smallest_angle(pt, ps, pb));
+  const double new_angle = std::min(smallest_angle(pa, ps, pb), smallest_angle(pb, pt, pa));
+  if (!(new_angle > old_angle + margin)) return false;
+  Patch patch{{ps, pt, pa, pb}, {{0, 1, 2}, {1, 0, 3}}, {{2, 0, 3}, {3, 1, 2}}};
+  const double gap = graph_gap(patch);
+  bound = gap + std::max(state.bound[mesh.face(h)], state.bound[mesh.face(o)]);
+  volume = CGAL::determinant(pb - ps, pt - ps, pa - ps) / 6;  // the old faces both hold s
+  return gap >= 0 && bound <= state.max_distance && state.volume_allows(volume);
+}
+
 // Flips edges where the two triangles' smallest angle grows by more than `margin` radians and the
 // new pair stays within max_distance (see the top of the file). Returns the number of flips.
 std::size_t flip_edges(Mesh& mesh, State& state, double margin) {
@@ -489,21 +547,12 @@ std::size_t flip_edges(Mesh& mesh, State& state, double margin) {
     queued[e] = false;
     const auto h = mesh.halfedge(e), o = mesh.opposite(h);
     const Vertex s = mesh.source(h), t = mesh.target(h);
-    const Vertex a = mesh.target(mesh.next(h)), b = mesh.target(mesh.next(o));
-    if ((*state.frozen)[s.idx()] || (*state.frozen)[t.idx()] || a == b) continue;
-    if (mesh.halfedge(a, b) != Mesh::null_halfedge()) continue;
-    const Point &ps = mesh.point(s), &pt = mesh.point(t), &pa = mesh.point(a), &pb = mesh.point(b);
-    const double old_angle = std::min(smallest_angle(ps, pt, pa), smallest_angle(pt, ps, pb));
-    const double new_angle = std::min(smallest_angle(pa, ps, pb), smallest_angle(pb, pt, pa));
-    if (!(new_angle > old_angle + margin)) continue;
-    Patch patch{{ps, pt, pa, pb}, {{0, 1, 2}, {1, 0, 3}}, {{2, 0, 3}, {3, 1, 2}}};
-    const double gap = graph_gap(patch);
-    const double bound = gap + std::max(state.bound[mesh.face(h)], state.bound[mesh.face(o)]);
-    const double volume = CGAL::determinant(pb - ps, pt - ps, pa - ps) / 6;  // the old faces both hold s
-    if (gap < 0 || bound > state.max_distance || !state.volume_allows(volume)) continue;
+    double bound = 0, volume = 0;
+    if (!bound_flip(mesh, state, h, margin, bound, volume)) continue;
     state.volume_change += volume;
     CGAL::Euler::flip_edge(h, mesh);
     state.bound[mesh.face(h)] = state.bound[mesh.face(o)] = bound;
+    state.log->add(Operation::kFlip, s.idx(), t.idx(), Point(), {{mesh.face(h), bound}, {mesh.face(o), bound}}, volume);
     ++flips;
     for (const auto side : {h, o}) {
       for (const auto k : {mesh.next(side), mesh.prev(side)}) {
@@ -518,48 +567,97 @@ std::size_t flip_edges(Mesh& mesh, State& state, double margin) {
   mesh.remove_property_map(queued);
   return flips;
 }
-}  // namespace
+// Makes the changes of `log` again, in order. A change whose patch is untouched (no frozen vertex,
+// no vertex of a change left out or made anew) sees the very faces, positions and bounds it saw the
+// first time: it is made with the bounds it had. The others are checked again as the first run
+// checks them (frozen vertices, the link condition, turned faces, distance and volume bounds) and
+// made with fresh bounds where they pass; either way their patch counts as touched from then on.
+void replay(Mesh& mesh, State& state, const CleanLog& log, std::size_t& collapses, std::size_t& flips) {
+  std::vector<char> touched(state.frozen->begin(), state.frozen->end());
+  std::vector<std::uint32_t> alias(touched.size());  // the first run's vertex index -> this run's
+  for (std::size_t i = 0; i < alias.size(); ++i) alias[i] = static_cast<std::uint32_t>(i);
+  auto star_untouched = [&](Vertex v) {
+    if (touched[v.idx()]) return false;
+    for (const auto h : mesh.halfedges_around_target(mesh.halfedge(v))) {
+      if (touched[mesh.source(h).idx()]) return false;
+    }
+    return true;
+  };
+  auto touch_star = [&](Vertex v) {
+    touched[v.idx()] = 1;
+    for (const auto h : mesh.halfedges_around_target(mesh.halfedge(v))) touched[mesh.source(h).idx()] = 1;
+  };
+  for (const auto& operation : log.operations) {
+    if (operation.kind == Operation::kPass) {
+      for (const auto face : mesh.faces()) state.bound[face] = 0;
+      state.volume_change = 0;
+      continue;
+    }
+    const Vertex a(alias[operation.a]), b(alias[operation.b]);
+    if (mesh.is_removed(a) || mesh.is_removed(b)) continue;
+    const auto h = mesh.halfedge(a, b);
+    if (h == Mesh::null_halfedge()) continue;
+    if (operation.kind == Operation::kCollapse) {
+      const bool same = star_untouched(a) && star_untouched(b);
+      if (same ? !state.volume_allows(operation.volume)
+               : !CGAL::Euler::does_satisfy_link_condition(mesh.edge(h), mesh) ||
+                     turns_a_face(mesh, h, operation.placement) ||
+                     !bound_collapse(mesh, &state, a, b, operation.placement)) {
+        touch_star(a);
+        touch_star(b);
+        continue;
+      }
+      const Vertex kept = CGAL::Euler::collapse_edge(mesh.edge(h), mesh);
+      mesh.point(kept) = operation.placement;
+      alias[operation.b] = kept.idx();
+      state.merges.parent[(kept == a ? b : a).idx()] = kept.idx();
+      ++collapses;
+      if (same) {
+        for (std::uint32_t i = operation.first; i < operation.last; ++i) {
+          state.bound[Face(log.bounds[i].first)] = log.bounds[i].second;
+        }
+        state.volume_change += operation.volume;
+      } else {
+        for (const auto& [face, bound] : state.accepted) state.bound[face] = bound;
+        state.volume_change += state.accepted_volume;
+        touch_star(kept);
+      }
+      continue;
+    }
+    const auto o = mesh.opposite(h);
+    const Vertex c = mesh.target(mesh.next(h)), d = mesh.target(mesh.next(o));
+    const bool same = !touched[a.idx()] && !touched[b.idx()] && !touched[c.idx()] && !touched[d.idx()];
+    double bound = 0, volume = 0;
+    if (same ? !state.volume_allows(operation.volume) || mesh.halfedge(c, d) != Mesh::null_halfedge()
+             : !bound_flip(mesh, state, h, log.flip_margin, bound, volume)) {
+      for (const Vertex v : {a, b, c, d}) touched[v.idx()] = 1;
+      continue;
+    }
+    CGAL::Euler::flip_edge(h, mesh);
+    ++flips;
+    if (same) {
+      for (std::uint32_t i = operation.first; i < operation.last; ++i) {
+        state.bound[Face(log.bounds[i].first)] = log.bounds[i].second;
+      }
+      state.volume_change += operation.volume;
+    } else {
+      state.bound[mesh.face(h)] = state.bound[mesh.face(o)] = bound;
+      state.volume_change += volume;
+      for (const Vertex v : {a, b, c, d}) touched[v.idx()] = 1;
+    }
+  }
+}
 
-// Cleans a closed manifold triangle surface; see the docstring at the binding below.
-py::tuple clean_surface(const py::object& vertices_in, const py::object& triangles_in, const py::object& frozen_in,
-                        double merge_length, double collapse_length, double max_distance, double max_volume_change,
-                        double flip_margin, int passes) {
-  voro3d::Points vertices = voro3d::check_points(vertices_in, "vertices", 3);
-  const py::ssize_t n = vertices.shape(0);
-  voro3d::Indices triangles = voro3d::check_indices(triangles_in, "triangles", 3, "t", n, "vertices");
-  voro3d::Mask frozen_mask = voro3d::check_mask(frozen_in, "frozen", n);
+Mesh mesh_of(const voro3d::Points& vertices, const voro3d::Indices& triangles) {
+  auto v = vertices.unchecked<2>();
+  auto t = triangles.unchecked<2>();
   if (triangles.shape(0) < 4) {
     throw py::value_error("triangles must hold at least 4 rows for a closed surface, got " +
                           std::to_string(triangles.shape(0)));
   }
-  if (!(std::isfinite(merge_length) && merge_length >= 0)) {
-    throw py::value_error("merge_length must be finite and >= 0, got " + std::to_string(merge_length));
-  }
-  if (!(std::isfinite(collapse_length) && collapse_length >= 0)) {
-    throw py::value_error("collapse_length must be finite and >= 0, got " + std::to_string(collapse_length));
-  }
-  if (!(std::isfinite(max_distance) && max_distance >= 0)) {
-    throw py::value_error("max_distance must be finite and >= 0, got " + std::to_string(max_distance));
-  }
-  if (!(std::isfinite(max_volume_change) && max_volume_change >= 0)) {
-    throw py::value_error("max_volume_change must be finite and >= 0, got " + std::to_string(max_volume_change));
-  }
-  if (passes < 1) throw py::value_error("passes must be >= 1, got " + std::to_string(passes));
-  if (!(std::isfinite(flip_margin) && flip_margin >= 0)) {
-    throw py::value_error("flip_margin must be finite and >= 0, got " + std::to_string(flip_margin));
-  }
-  auto v = vertices.unchecked<2>();
-  auto t = triangles.unchecked<2>();
-  auto f = frozen_mask.unchecked<1>();
-  const py::ssize_t m = triangles.shape(0);
-
   Mesh mesh;
-  std::vector<char> frozen(static_cast<std::size_t>(n));
-  for (py::ssize_t i = 0; i < n; ++i) {
-    mesh.add_vertex(Point(v(i, 0), v(i, 1), v(i, 2)));
-    frozen[i] = f(i);
-  }
-  for (py::ssize_t i = 0; i < m; ++i) {
+  for (py::ssize_t i = 0; i < v.shape(0); ++i) mesh.add_vertex(Point(v(i, 0), v(i, 1), v(i, 2)));
+  for (py::ssize_t i = 0; i < t.shape(0); ++i) {
     if (mesh.add_face(Vertex(t(i, 0)), Vertex(t(i, 1)), Vertex(t(i, 2))) == Mesh::null_face()) {
       throw py::value_error("triangles row " + std::to_string(i) +
                             " makes the surface non-manifold, degenerate or inconsistently oriented");
@@ -571,27 +669,88 @@ py::tuple clean_surface(const py::object& vertices_in, const py::object& triangl
                             ", " + std::to_string(mesh.target(h).idx()) + ") has one triangle");
     }
   }
+  return mesh;
+}
 
-  std::vector<double> out_points;
-  std::vector<std::int64_t> out_triangles;
-  std::vector<std::int64_t> label(static_cast<std::size_t>(n), -1);
+// (vertices, triangles, label) of the cleaned mesh, as clean_surface returns them.
+py::tuple arrays_of(const Mesh& mesh, State& state, std::size_t n) {
+  std::vector<double> points;
+  std::vector<std::int64_t> triangles, label(n, -1);
+  {
+    py::gil_scoped_release release;
+    std::vector<std::int64_t> index(n, -1);
+    for (const auto vertex : mesh.vertices()) {
+      if (mesh.is_isolated(vertex)) continue;
+      index[vertex.idx()] = static_cast<std::int64_t>(points.size() / 3);
+      const Point& p = mesh.point(vertex);
+      points.insert(points.end(), {p.x(), p.y(), p.z()});
+    }
+    for (const auto face : mesh.faces()) {
+      for (const auto vertex : mesh.vertices_around_face(mesh.halfedge(face))) triangles.push_back(index[vertex.idx()]);
+    }
+    for (std::size_t i = 0; i < n; ++i) label[i] = index[state.merges.find(static_cast<std::int64_t>(i))];
+  }
+  py::array_t<double> result_points({static_cast<py::ssize_t>(points.size() / 3), static_cast<py::ssize_t>(3)});
+  std::copy(points.begin(), points.end(), result_points.mutable_data());
+  py::array_t<std::int64_t> result_label(static_cast<py::ssize_t>(n));
+  std::copy(label.begin(), label.end(), result_label.mutable_data());
+  return py::make_tuple(result_points, voro3d::to_array(triangles, 3), result_label);
+}
+
+State state_of(Mesh& mesh, const std::vector<char>& frozen, double max_distance, double max_volume_change) {
+  State state{&frozen, mesh.add_property_map<Face, double>("f:voro3d_bound", 0.0).first, max_distance,
+              max_volume_change};
+  state.merges.parent.resize(frozen.size());
+  for (std::size_t i = 0; i < frozen.size(); ++i) state.merges.parent[i] = static_cast<std::int64_t>(i);
+  return state;
+}
+
+std::vector<char> frozen_of(const py::object& frozen_in, py::ssize_t n) {
+  auto f = voro3d::check_mask(frozen_in, "frozen", n).unchecked<1>();
+  std::vector<char> frozen(static_cast<std::size_t>(n));
+  for (py::ssize_t i = 0; i < n; ++i) frozen[i] = f(i);
+  return frozen;
+}
+}  // namespace
+
+// Cleans a closed manifold triangle surface; see the docstring at the binding below.
+py::tuple clean_surface(const py::object& vertices_in, const py::object& triangles_in, const py::object& frozen_in,
+                        double merge_length, double collapse_length, double max_distance, double max_volume_change,
+                        double flip_margin, int passes) {
+  const voro3d::Points vertices = voro3d::check_points(vertices_in, "vertices", 3);
+  const py::ssize_t n = vertices.shape(0);
+  const voro3d::Indices triangles = voro3d::check_indices(triangles_in, "triangles", 3, "t", n, "vertices");
+  const std::vector<char> frozen = frozen_of(frozen_in, n);
+  for (const auto& [name, value] : {std::pair<const char*, double>{"merge_length", merge_length},
+                                    {"collapse_length", collapse_length}, {"max_distance", max_distance},
+                                    {"max_volume_change", max_volume_change}, {"flip_margin", flip_margin}}) {
+    if (!(std::isfinite(value) && value >= 0)) {
+      throw py::value_error(std::string(name) + " must be finite and >= 0, got " + std::to_string(value));
+    }
+  }
+  if (passes < 1) throw py::value_error("passes must be >= 1, got " + std::to_string(passes));
+  Mesh mesh = mesh_of(vertices, triangles);
+
+  auto log = std::make_shared<CleanLog>();
+  log->n_vertices = static_cast<std::size_t>(n);
+  log->n_triangles = static_cast<std::size_t>(triangles.shape(0));
+  // The bounds restart at zero each pass, against that pass's input: the Hausdorff distance obeys
+  // the triangle inequality, so the passes' budgets add up to max_distance. Two passes of half
+  // the budget clean more than one (bunny 64^3: 4.4% of the triangles off the true normal
+  // instead of 6.8%), as each pass's bounds grow from the largest of the faces they replace.
+  log->max_distance = max_distance / passes;
+  log->max_volume_change = max_volume_change / passes;
+  log->flip_margin = flip_margin;
+  State state = state_of(mesh, frozen, log->max_distance, log->max_volume_change);
+  state.log = log.get();
   std::size_t merges = 0, collapses = 0, flips = 0;
   {
     py::gil_scoped_release release;
-    State state{&frozen, mesh.add_property_map<Face, double>("f:voro3d_bound", 0.0).first, max_distance,
-                max_volume_change};
-    state.merges.parent.resize(static_cast<std::size_t>(n));
-    for (py::ssize_t i = 0; i < n; ++i) state.merges.parent[i] = i;
-    // The bounds restart at zero each pass, against that pass's input: the Hausdorff distance obeys
-    // the triangle inequality, so the passes' budgets add up to max_distance. Two passes of half
-    // the budget clean more than one (bunny 64^3: 4.4% of the triangles off the true normal
-    // instead of 6.8%), as each pass's bounds grow from the largest of the faces they replace.
     auto zero_length = mesh.add_property_map<Mesh::Edge_index, bool>("e:voro3d_zero_length", false).first;
-    state.max_distance = max_distance / passes;
-    state.max_volume_change = max_volume_change / passes;
     for (int pass = 0; pass < passes; ++pass) {
       for (const auto face : mesh.faces()) state.bound[face] = 0;
       state.volume_change = 0;
+      log->add(Operation::kPass, 0, 0, Point(), {}, 0);
       merges += merge_close_vertices(mesh, state, merge_length);
       // edge_collapse merges the ends of edges of length zero first, without asking the filter: the
       // ones merge_close_vertices refused (a frozen end, the link condition, ...) are constrained.
@@ -608,34 +767,44 @@ py::tuple clean_surface(const py::object& vertices_in, const py::object& triangl
       collapses += before - mesh.number_of_vertices();
       flips += flip_edges(mesh, state, flip_margin);
     }
-
-    std::vector<std::int64_t> index(static_cast<std::size_t>(n), -1);
-    for (const auto vertex : mesh.vertices()) {
-      if (mesh.is_isolated(vertex)) continue;
-      index[vertex.idx()] = static_cast<std::int64_t>(out_points.size() / 3);
-      const Point& p = mesh.point(vertex);
-      out_points.insert(out_points.end(), {p.x(), p.y(), p.z()});
-    }
-    for (const auto face : mesh.faces()) {
-      for (const auto vertex : mesh.vertices_around_face(mesh.halfedge(face))) {
-        out_triangles.push_back(index[vertex.idx()]);
-      }
-    }
-    for (py::ssize_t i = 0; i < n; ++i) label[i] = index[state.merges.find(i)];
-    if (state.unaccounted) throw std::logic_error("clean_surface: an edge was collapsed without its bounds");
   }
-  py::array_t<double> result_points({static_cast<py::ssize_t>(out_points.size() / 3), static_cast<py::ssize_t>(3)});
-  std::copy(out_points.begin(), out_points.end(), result_points.mutable_data());
-  py::array_t<std::int64_t> result_label(static_cast<py::ssize_t>(label.size()));
-  std::copy(label.begin(), label.end(), result_label.mutable_data());
-  return py::make_tuple(result_points, voro3d::to_array(out_triangles, 3), result_label, merges, collapses, flips);
+  if (state.unaccounted) throw std::logic_error("clean_surface: an edge was collapsed without its bounds");
+  const py::tuple arrays = arrays_of(mesh, state, static_cast<std::size_t>(n));
+  return py::make_tuple(arrays[0], arrays[1], arrays[2], merges + collapses, flips, py::cast(log));
+}
+
+// Makes the changes of a clean_surface call again with more frozen vertices; see the binding below.
+py::tuple replay_clean(const py::object& vertices_in, const py::object& triangles_in, const py::object& frozen_in,
+                       const std::shared_ptr<CleanLog>& log) {
+  const voro3d::Points vertices = voro3d::check_points(vertices_in, "vertices", 3);
+  const py::ssize_t n = vertices.shape(0);
+  const voro3d::Indices triangles = voro3d::check_indices(triangles_in, "triangles", 3, "t", n, "vertices");
+  const std::vector<char> frozen = frozen_of(frozen_in, n);
+  if (!log) throw py::type_error("log must be the log clean_surface returned, got None");
+  if (log->n_vertices != static_cast<std::size_t>(n) || log->n_triangles != static_cast<std::size_t>(triangles.shape(0))) {
+    throw py::value_error("log is of a surface of " + std::to_string(log->n_vertices) + " vertices and " +
+                          std::to_string(log->n_triangles) + " triangles, got " + std::to_string(n) + " and " +
+                          std::to_string(triangles.shape(0)));
+  }
+  Mesh mesh = mesh_of(vertices, triangles);
+  State state = state_of(mesh, frozen, log->max_distance, log->max_volume_change);
+  std::size_t collapses = 0, flips = 0;
+  {
+    py::gil_scoped_release release;
+    replay(mesh, state, *log, collapses, flips);
+  }
+  const py::tuple arrays = arrays_of(mesh, state, static_cast<std::size_t>(n));
+  return py::make_tuple(arrays[0], arrays[1], arrays[2], collapses, flips);
 }
 
 void register_clean(py::module_& module) {
+  py::class_<CleanLog, std::shared_ptr<CleanLog>>(module, "CleanLog",
+                                                 "The changes of a clean_surface call, for replay_clean.")
+      .def("__len__", [](const CleanLog& log) { return log.operations.size(); });
   module.def("clean_surface", &clean_surface, py::arg("vertices"), py::arg("triangles"), py::arg("frozen"),
              py::arg("merge_length"), py::arg("collapse_length"), py::arg("max_distance"),
              py::arg("max_volume_change"), py::arg("flip_margin"), py::arg("passes"),
-             "(vertices (m, 3) float64, triangles (s, 3) int64, label (n,) int64, merges, collapses, flips) of a "
+             "(vertices (m, 3) float64, triangles (s, 3) int64, label (n,) int64, collapses, flips, log) of a "
              "closed, manifold, consistently oriented surface of finite (n, 3) vertices and (t, 3) triangles, "
              "cleaned in `passes` passes of: the ends of edges shorter than merge_length merged at their midpoint; "
              "edges shorter than collapse_length collapsed (shortest first, Lindstrom-Turk placement near the "
@@ -644,5 +813,12 @@ void register_clean(py::module_& module) {
              "max_distance from the input, nor any point of the input from the result (a bound carried per "
              "face), and the enclosed volume changes by at most max_volume_change. Vertices where the (n,) bool "
              "frozen is set are never moved, merged or flipped around. label[i] is the output vertex input "
-             "vertex i became, -1 if it was in no triangle. Self-intersections are not tested here.");
+             "vertex i became, -1 if it was in no triangle. log lists the changes, for replay_clean. "
+             "Self-intersections are not tested here.");
+  module.def("replay_clean", &replay_clean, py::arg("vertices"), py::arg("triangles"), py::arg("frozen"),
+             py::arg("log"),
+             "(vertices, triangles, label, collapses, flips) as clean_surface returns them: the changes of `log` "
+             "(a clean_surface call on the same vertices and triangles) made again in order, except those whose "
+             "patch holds a frozen vertex (the (n,) bool frozen) or a vertex of a change left out. The changes "
+             "made see what they saw the first time, so every bound of clean_surface holds.");
 }

@@ -261,3 +261,33 @@ def test_batch_no_clean(tmp_path):
         assert summary.rows[0]["settings"]["clean"] is clean_option and summary.rows[0]["status"] == "ok"
         counts[clean_option] = len(load_mesh(out / "sphere.ply", weld=False).triangles)
     assert counts[True] < counts[False]
+
+
+def test_replay_makes_the_same_changes_and_spares_frozen_vertices():
+    vertices, triangles = random_surface(0, "ball")
+    frozen = np.zeros(len(vertices), bool)
+    arguments = (0.05 * 0.2, 0.4 * 0.2, 0.2 * 0.2, 1e-3, np.radians(1.0), 2)
+    first = _cgal.clean_surface(vertices, triangles, frozen, *arguments)
+    log = first[-1]
+    assert len(log) >= first[3] + first[4]  # every collapse and flip, and the passes
+    again = _cgal.replay_clean(vertices, triangles, frozen, log)
+    for a, b in zip(first[:5], again):
+        np.testing.assert_array_equal(a, b)
+    frozen[::7] = True
+    spared = _cgal.replay_clean(vertices, triangles, frozen, log)
+    new_vertices, _, label = spared[:3]
+    np.testing.assert_array_equal(new_vertices[label[frozen]], vertices[frozen])  # not moved
+    assert np.bincount(label[label >= 0])[label[frozen]].max() == 1  # nothing merged into them
+    assert check_watertight(spared[:2], self_intersection=False).closed
+
+
+def test_replay_checks_its_arguments():
+    vertices, triangles = tetrahedron()
+    frozen = np.zeros(4, bool)
+    log = _cgal.clean_surface(vertices, triangles, frozen, 0.1, 0.1, 0.1, 0.1, 0.01, 1)[-1]
+    with pytest.raises(TypeError):
+        _cgal.replay_clean(vertices, triangles, frozen, None)
+    with pytest.raises(ValueError, match="log is of a surface of 4 vertices and 4 triangles"):
+        _cgal.replay_clean(*random_surface(0, "ball"), np.zeros(len(random_surface(0, "ball")[0]), bool), log)
+    with pytest.raises(ValueError, match="frozen must have shape"):
+        _cgal.replay_clean(vertices, triangles, np.zeros(3, bool), log)
