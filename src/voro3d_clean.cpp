@@ -64,55 +64,39 @@ using FaceBound = Mesh::Property_map<Face, double>;
 using Triangle = std::array<int, 3>;
 namespace SMS = CGAL::Surface_mesh_simplification;
 
-// A disk replaced by another with the same boundary, in local vertex indices; graph_gap fills the
-// projected coordinates x, y, the heights z and the interiors. Reused from change to change, so
-// that testing one allocates nothing.
+// A disk replaced by another with the same boundary, in local vertex indices, with the vertices
+// and edges inside each disk (not on the boundary); graph_gap fills the projected coordinates x, y
+// and the heights z. Reused from change to change, so that testing one allocates nothing.
 struct Patch {
   std::vector<Point> points;
   std::vector<Triangle> before, after;
+  std::vector<int> inner_before, inner_after;
+  std::vector<std::pair<int, int>> edges_before, edges_after;
   std::vector<double> x, y, z;
-  std::vector<std::pair<int, int>> edges_before, edges_after, scratch;
-  std::vector<int> inner_before, inner_after, boundary;
 
   void clear() {
     points.clear();
     before.clear();
     after.clear();
+    inner_before.clear();
+    inner_after.clear();
+    edges_before.clear();
+    edges_after.clear();
+  }
+
+  // The edges of `triangles` at an interior vertex: all interior, each listed once (its two
+  // triangles run it in opposite directions, one of them from the smaller index).
+  static void edges_at(const std::vector<Triangle>& triangles, const std::vector<int>& inner,
+                       std::vector<std::pair<int, int>>& edges) {
+    auto is_inner = [&](int v) { return std::find(inner.begin(), inner.end(), v) != inner.end(); };
+    for (const auto& t : triangles) {
+      for (int k = 0; k < 3; ++k) {
+        const int a = t[k], b = t[(k + 1) % 3];
+        if (a < b && (is_inner(a) || is_inner(b))) edges.emplace_back(a, b);
+      }
+    }
   }
 };
-
-// Interior edges (in two triangles) and interior vertices (on interior edges only) of a disk;
-// `all` and `boundary` are scratch space.
-void interior_of(const std::vector<Triangle>& triangles, std::vector<std::pair<int, int>>& edges,
-                 std::vector<int>& vertices, std::vector<std::pair<int, int>>& all, std::vector<int>& boundary) {
-  edges.clear();
-  vertices.clear();
-  all.clear();
-  boundary.clear();
-  for (const auto& t : triangles) {
-    for (int k = 0; k < 3; ++k) all.emplace_back(std::minmax(t[k], t[(k + 1) % 3]));
-  }
-  std::sort(all.begin(), all.end());
-  for (std::size_t i = 0; i < all.size();) {
-    std::size_t j = i;
-    while (j < all.size() && all[j] == all[i]) ++j;
-    if (j - i == 2) {
-      edges.push_back(all[i]);
-    } else {
-      boundary.push_back(all[i].first);
-      boundary.push_back(all[i].second);
-    }
-    i = j;
-  }
-  std::sort(boundary.begin(), boundary.end());
-  for (const auto& t : triangles) {
-    for (int v : t) {
-      if (!std::binary_search(boundary.begin(), boundary.end(), v)) vertices.push_back(v);
-    }
-  }
-  std::sort(vertices.begin(), vertices.end());
-  vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
-}
 
 // The largest gap between the two disks of `patch` along the mean normal of `before`, or -1 when
 // that direction does not make both of them graphs (see the top of the file).
@@ -164,12 +148,10 @@ double graph_gap(Patch& patch) {
     }
     return best >= -1e-9 ? value : NAN;
   };
-  auto& edges_before = patch.edges_before;
-  auto& edges_after = patch.edges_after;
-  auto& inner_before = patch.inner_before;
-  auto& inner_after = patch.inner_after;
-  interior_of(patch.before, edges_before, inner_before, patch.scratch, patch.boundary);
-  interior_of(patch.after, edges_after, inner_after, patch.scratch, patch.boundary);
+  const auto& edges_before = patch.edges_before;
+  const auto& edges_after = patch.edges_after;
+  const auto& inner_before = patch.inner_before;
+  const auto& inner_after = patch.inner_after;
   // One turn around each interior vertex: a graph, not a disk wrapped twice around it.
   for (const auto* side : {&patch.before, &patch.after}) {
     const auto& inner = side == &patch.before ? inner_before : inner_after;
@@ -359,6 +341,10 @@ bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const 
     }
   }
   if (!state->volume_allows(volume)) return false;
+  patch.inner_before = {i0, i1};
+  patch.inner_after = {ip};
+  Patch::edges_at(patch.before, patch.inner_before, patch.edges_before);
+  Patch::edges_at(patch.after, patch.inner_after, patch.edges_after);
   const double gap = graph_gap(patch);
   state->accepted.clear();
   state->accepted_volume = volume;
@@ -527,7 +513,7 @@ bool bound_flip(const Mesh& mesh, const State& state, Mesh::Halfedge_index h, do
   const double old_angle = std::min(smallest_angle(ps, pt, pa), smallest_angle(pt, ps, pb));
   const double new_angle = std::min(smallest_angle(pa, ps, pb), smallest_angle(pb, pt, pa));
   if (!(new_angle > old_angle + margin)) return false;
-  Patch patch{{ps, pt, pa, pb}, {{0, 1, 2}, {1, 0, 3}}, {{2, 0, 3}, {3, 1, 2}}};
+  Patch patch{{ps, pt, pa, pb}, {{0, 1, 2}, {1, 0, 3}}, {{2, 0, 3}, {3, 1, 2}}, {}, {}, {{0, 1}}, {{2, 3}}};
   const double gap = graph_gap(patch);
   bound = gap + std::max(state.bound[mesh.face(h)], state.bound[mesh.face(o)]);
   volume = CGAL::determinant(pb - ps, pt - ps, pa - ps) / 6;  // the old faces both hold s
