@@ -1,20 +1,28 @@
 """Cleaned vs uncleaned VoroMesh surfaces, and Marching Cubes, on the dev meshes.
 
 For every mesh of a folder (default ``../shared/data/dev``) and every grid: fit a VoroMesh (the
-generators are cached under ``out/bench_clean/`` with the fit's time, so a rerun refits nothing),
-extract its surface, clean it (:func:`voro3d.cleaning.clean_surface`), and build Marching Cubes
-from the SDF grid of the same resolution. Each surface is scored against the input: CD x1e5, F1
+generators are cached under ``out/bench_clean/`` with the fit's time, so a rerun refits nothing
+unless ``--refit``), extract its surface, clean it (:func:`voro3d.cleaning.clean_surface`), and
+build Marching Cubes from the SDF grid of the same resolution. Each surface is scored against the input: CD x1e5, F1
 and NC (:func:`voro3d.metrics.evaluate`), the share of triangles more than 30 degrees off the
 true normal and the share of slivers, smallest angle under 5 degrees
 (:func:`voro3d.metrics.triangle_quality`), faces, and the full watertight check (exact crossing
 test). The cleaned surface is also measured against the uncleaned one: sampled distances both ways
-(in voxels, beside the bound ``clean`` guarantees) and the volume change. Clean time is compared
-with the fit's; the clean's peak memory is the rise of the process's peak RSS during the clean
-(reset through ``/proc/self/clear_refs`` before it). Each shape runs in its own process.
+(in voxels, beside the bound ``clean`` guarantees) and the volume change. Clean time (wall
+and CPU) is compared with the fit's, measured in the same process with ``--refit``; the clean's
+peak memory is the process's peak RSS during the clean (reset through ``/proc/self/clear_refs``
+before it, after handing freed heap back with ``malloc_trim``), and its rise over the RSS before. Each shape runs in its own process.
 
-Writes ``benchmarks/results/clean_<grids>.{md,json}`` and a PNG of a few shapes before and after.
+``--clouds`` does the same for the point-cloud outputs: clouds made as ``bench_pointcloud.py``
+makes them (``CLOUD_CONDITIONS`` of its conditions) from ``CLOUD_SHAPES``, reconstructed by
+:func:`voro3d.pointcloud.reconstruct_points` (grid auto), their surface before and after the clean,
+Marching Cubes of the true mesh at the same grid beside them.
 
-    python benchmarks/bench_clean.py [--grids 32 64] [--folder DIR] [--names a.obj b.off] [--limit N]
+Writes ``benchmarks/results/clean_<grids>.{md,json}`` (``clean_clouds`` with ``--clouds``) and a
+PNG of a few shapes before and after.
+
+    python benchmarks/bench_clean.py [--grids 32 64] [--folder DIR] [--names a.obj b.off] [--limit N] [--refit]
+    python benchmarks/bench_clean.py --clouds
 """
 from __future__ import annotations
 
@@ -32,6 +40,8 @@ DEV = ROOT.parent / "shared" / "data" / "dev"
 CACHE = ROOT / "out" / "bench_clean"
 SURFACES = ("uncleaned", "cleaned", "mc")
 PICTURED = ("cad_fandisk.obj", "organic_bunny.off", "cad_rocker-arm.obj")
+CLOUD_SHAPES = ("organic_bunny.off", "cad_fandisk.obj", "organic_armadillo.obj", "cad_rocker-arm.obj")
+CLOUD_CONDITIONS = ("clean 20k", "noise 0.5%", "outliers 2%", "third missing")
 
 
 def _peak_rss_mib() -> float:
@@ -42,6 +52,15 @@ def _peak_rss_mib() -> float:
 
 
 def _reset_peak_rss() -> bool:
+    """Hand freed heap back to the OS (glibc), then restart the peak at the current RSS (Linux)."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
     try:
         Path("/proc/self/clear_refs").write_text("5")
         return True
@@ -49,7 +68,7 @@ def _reset_peak_rss() -> bool:
         return False
 
 
-def _fitted(path: Path, grid: int):
+def _fitted(path: Path, grid: int, refit: bool):
     """The VoroMesh of ``path`` at ``grid`` and the fit's seconds, from the cache or a new fit."""
     import torch
 
@@ -59,15 +78,15 @@ def _fitted(path: Path, grid: int):
     from voro3d.topology import open_edge_count
 
     stem = CACHE / f"{path.stem}_{grid}"
-    if stem.with_suffix(".npz").exists() and stem.with_suffix(".json").exists():
+    if not refit and stem.with_suffix(".npz").exists() and stem.with_suffix(".json").exists():
         return VoroMesh.load(stem.with_suffix(".npz")), json.loads(stem.with_suffix(".json").read_text())
     torch.set_num_threads(1)
     source = load_mesh(path)
     open_input = open_edge_count(*mesh_arrays(source)) > 0
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     shape, _ = fit(source, grid, progress=False, allow_open=open_input)
-    fit = dict(fit_seconds=time.perf_counter() - start, open_input=bool(open_input),
-               fit_load_average=Path("/proc/loadavg").read_text().split()[:3])
+    fit = dict(fit_seconds=time.perf_counter() - start, fit_cpu_seconds=time.process_time() - cpu,
+               open_input=bool(open_input), fit_load_average=Path("/proc/loadavg").read_text().split()[:3])
     CACHE.mkdir(parents=True, exist_ok=True)
     shape.save(stem.with_suffix(".npz"))
     stem.with_suffix(".json").write_text(json.dumps(fit))
@@ -86,48 +105,63 @@ def _distances_voxels(a, b, voxel, n_samples=100_000):
     return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy() / voxel
 
 
-def _one(path, grid, queue):
+def _surfaces(source, shape, grid, open_input):
+    """The uncleaned, cleaned and Marching Cubes surfaces, the clean's report, times and peak RSS."""
     from voro3d.baselines import marching_cubes
     from voro3d.cleaning import clean_surface
     from voro3d.extract import voronoi_surface
-    from voro3d.io import fit_frame, load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
-    from voro3d.metrics import evaluate, triangle_quality
+    from voro3d.io import fit_frame
     from voro3d.queries import sdf_grid
+
+    surfaces = {"uncleaned": voronoi_surface(shape.generators, shape.occupancy)}
+    before_rss = _peak_rss_mib() if _reset_peak_rss() else float("nan")
+    start, cpu = time.perf_counter(), time.process_time()
+    vertices, triangles, info = clean_surface(*surfaces["uncleaned"])
+    timing = dict(clean_seconds=time.perf_counter() - start, clean_cpu_seconds=time.process_time() - cpu,
+                  clean_peak_rss_mib=_peak_rss_mib(), clean_rss_rise_mib=_peak_rss_mib() - before_rss,
+                  clean_load_average=Path("/proc/loadavg").read_text().split()[:3])
+    surfaces["cleaned"] = (vertices, triangles)
+    frame = fit_frame(source)
+    mc_vertices, mc_triangles = marching_cubes(sdf_grid(frame.apply_mesh(source), grid, allow_open=open_input))
+    surfaces["mc"] = (frame.invert(mc_vertices), mc_triangles)
+    return surfaces, info, timing
+
+
+def _scores(surfaces, source, info):
+    """Every surface scored against the input; the cleaned one measured against the uncleaned."""
+    from voro3d.metrics import evaluate, triangle_quality
     from voro3d.watertight import check_watertight
+
+    row = {}
+    for name, surface in surfaces.items():
+        scores = evaluate(surface, source)
+        scores.update(triangle_quality(surface, source))
+        report = check_watertight(surface)
+        scores.update(watertight=report.watertight, self_intersecting_pairs=report.self_intersecting_pairs,
+                      volume=report.volume)
+        row[name] = scores
+    to_input = _distances_voxels(surfaces["cleaned"], surfaces["uncleaned"], info.voxel)
+    from_input = _distances_voxels(surfaces["uncleaned"], surfaces["cleaned"], info.voxel)
+    row.update(distance_to_uncleaned_max=float(to_input.max()), distance_from_uncleaned_max=float(from_input.max()),
+               distance_mean=float((to_input.mean() + from_input.mean()) / 2),
+               distance_bound=info.max_distance / info.voxel,
+               volume_change=row["cleaned"]["volume"] / row["uncleaned"]["volume"] - 1, clean=info.as_dict())
+    return row
+
+
+def _one(path, grid, refit, queue):
+    from voro3d.io import load_mesh, save_mesh, to_triangle_mesh
 
     try:
         path = Path(path)
         source = load_mesh(path)
-        shape, fit = _fitted(path, grid)
-        surfaces = {"uncleaned": voronoi_surface(shape.generators, shape.occupancy)}
-        baseline_rss = _peak_rss_mib() if _reset_peak_rss() else float("nan")
-        start = time.perf_counter()
-        vertices, triangles, info = clean_surface(*surfaces["uncleaned"])
-        clean_seconds = time.perf_counter() - start
-        clean_peak = _peak_rss_mib() - baseline_rss
-        surfaces["cleaned"] = (vertices, triangles)
-        frame = fit_frame(source)
-        mc_vertices, mc_triangles = marching_cubes(sdf_grid(frame.apply_mesh(source), grid,
-                                                            allow_open=fit["open_input"]))
-        surfaces["mc"] = (frame.invert(mc_vertices), mc_triangles)
-        row = dict(shape=path.name, grid=grid, status="ok", open_input=fit["open_input"],
-                   fit_seconds=fit["fit_seconds"], clean_seconds=clean_seconds,
-                   clean_time_ratio=clean_seconds / fit["fit_seconds"], clean_peak_rss_mib=clean_peak,
-                   clean=info.as_dict())
-        for name, surface in surfaces.items():
-            scores = evaluate(surface, source)
-            scores.update(triangle_quality(surface, source))
-            report = check_watertight(surface)
-            scores.update(watertight=report.watertight, self_intersecting_pairs=report.self_intersecting_pairs,
-                          volume=report.volume)
-            row[name] = scores
-        voxel = info.voxel
-        to_input = _distances_voxels(surfaces["cleaned"], surfaces["uncleaned"], voxel)
-        from_input = _distances_voxels(surfaces["uncleaned"], surfaces["cleaned"], voxel)
-        row.update(distance_to_uncleaned_max=float(to_input.max()), distance_from_uncleaned_max=float(from_input.max()),
-                   distance_mean=float((to_input.mean() + from_input.mean()) / 2),
-                   distance_bound=info.max_distance / voxel,
-                   volume_change=row["cleaned"]["volume"] / row["uncleaned"]["volume"] - 1)
+        shape, fit = _fitted(path, grid, refit)
+        surfaces, info, timing = _surfaces(source, shape, grid, fit["open_input"])
+        row = dict(shape=path.name, grid=grid, status="ok", **fit, **timing,
+                   clean_time_ratio=timing["clean_seconds"] / fit["fit_seconds"])
+        if "fit_cpu_seconds" in fit:
+            row["clean_cpu_ratio"] = timing["clean_cpu_seconds"] / fit["fit_cpu_seconds"]
+        row.update(_scores(surfaces, source, info))
         if path.name in PICTURED:
             for name in ("uncleaned", "cleaned"):
                 save_mesh(to_triangle_mesh(*surfaces[name]), CACHE / f"{path.stem}_{grid}_{name}.ply")
@@ -136,10 +170,36 @@ def _one(path, grid, queue):
         queue.put(dict(shape=Path(path).name, grid=grid, status="failed", error=f"{type(error).__name__}: {error}"))
 
 
-def run_shape(path, grid):
+def _one_cloud(path, condition, queue):
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_pointcloud import make_cloud
+
+    from voro3d.io import load_mesh
+    from voro3d.pointcloud import reconstruct_points
+
+    try:
+        path = Path(path)
+        source = load_mesh(path)
+        start = time.perf_counter()
+        shape, cloud_info = reconstruct_points(make_cloud(source, condition))
+        reconstruct_seconds = time.perf_counter() - start
+        surfaces, info, timing = _surfaces(source, shape, cloud_info.grid, False)
+        row = dict(shape=path.name, condition=condition, grid=cloud_info.grid, status="ok",
+                   reconstruct_seconds=reconstruct_seconds, **timing)
+        row.update(_scores(surfaces, source, info))
+        queue.put(row)
+    except Exception as error:  # one bad cloud is recorded, not fatal
+        queue.put(dict(shape=Path(path).name, condition=condition, status="failed",
+                       error=f"{type(error).__name__}: {error}"))
+
+
+def run_in_process(target, *args):
+    """``target(*args, queue)`` in a process of its own (so that its peak RSS is its own); its row."""
     context = multiprocessing.get_context("spawn")
     queue = context.Queue()
-    process = context.Process(target=_one, args=(str(path), grid, queue))
+    process = context.Process(target=target, args=(*args, queue))
     process.start()
     row = queue.get()
     process.join()
@@ -172,7 +232,11 @@ def _summary(rows, grid):
     out["clean_seconds_mean"] = float(np.mean([r["clean_seconds"] for r in ok]))
     out["clean_time_ratio_mean"] = float(np.mean([r["clean_time_ratio"] for r in ok]))
     out["clean_time_ratio_max"] = float(max(r["clean_time_ratio"] for r in ok))
+    cpu = [r["clean_cpu_ratio"] for r in ok if "clean_cpu_ratio" in r]
+    out["clean_cpu_ratio_mean"] = float(np.mean(cpu)) if cpu else float("nan")
+    out["clean_cpu_ratio_max"] = float(max(cpu)) if cpu else float("nan")
     out["clean_peak_rss_mib_max"] = float(max(r["clean_peak_rss_mib"] for r in ok))
+    out["clean_rss_rise_mib_max"] = float(max(r["clean_rss_rise_mib"] for r in ok))
     out["distance_max"] = float(max(max(r["distance_to_uncleaned_max"], r["distance_from_uncleaned_max"]) for r in ok))
     out["distance_bound"] = float(ok[0]["distance_bound"])
     out["volume_change_max"] = float(max(abs(r["volume_change"]) for r in ok))
@@ -204,8 +268,9 @@ def write_tables(rows, grids, out: Path):
                          f" | {s[surface + '_watertight_pct']:.0f} |")
     lines += ["", "| grid | faces fewer (mean, worst) | CD change (mean, worst) | F1 change (mean, worst) | "
               "NC change (mean, worst) | shapes off-normal above MC | slivers max | clean s (mean) | "
-              "clean / fit (mean, max) | clean peak RSS MiB (max) | distance max / bound (voxels) | "
-              "volume change max | rounds max |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "clean / fit wall (mean, max) | clean / fit CPU (mean, max) | clean peak RSS MiB, rise (max) | "
+              "distance max / bound (voxels) | volume change max | rounds max |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in summaries:
         if not s["shapes"]:
             continue
@@ -215,7 +280,9 @@ def write_tables(rows, grids, out: Path):
             f"{s['f1_change_mean']:+.2%}, {s['f1_change_worst']:+.2%} | "
             f"{s['nc_change_mean']:+.2%}, {s['nc_change_worst']:+.2%} | {s['off_normal_above_mc']} | "
             f"{s['slivers_max']:.1%} | {s['clean_seconds_mean']:.2f} | "
-            f"{s['clean_time_ratio_mean']:.1%}, {s['clean_time_ratio_max']:.1%} | {s['clean_peak_rss_mib_max']:.0f} | "
+            f"{s['clean_time_ratio_mean']:.1%}, {s['clean_time_ratio_max']:.1%} | "
+            f"{s['clean_cpu_ratio_mean']:.1%}, {s['clean_cpu_ratio_max']:.1%} | "
+            f"{s['clean_peak_rss_mib_max']:.0f}, {s['clean_rss_rise_mib_max']:.0f} | "
             f"{s['distance_max']:.3f} / {s['distance_bound']:.2f} | {s['volume_change_max']:.2e} | {s['rounds_max']} |")
     lines += ["", "## Per shape", "",
               "| shape | grid | faces before -> after | off-normal % unclean / clean / MC | slivers % unclean / "
@@ -232,6 +299,44 @@ def write_tables(rows, grids, out: Path):
             f"{u['sliver_share']:.1%} / {c['sliver_share']:.1%} | {u['chamfer_x1e5']:.3f} / {c['chamfer_x1e5']:.3f} | "
             f"{u['f1']:.3f} / {c['f1']:.3f} | {u['nc']:.3f} / {c['nc']:.3f} | {r['clean_seconds']:.2f} | "
             f"{r['fit_seconds']:.1f} | {c['watertight']} | {r['clean']['rounds']} |")
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print(f"wrote {out.with_suffix('.md')}")
+
+
+def write_cloud_tables(rows, out: Path):
+    out.parent.mkdir(parents=True, exist_ok=True)
+    load = Path("/proc/loadavg").read_text().split()[:3]
+    meta = dict(machine=f"{platform.machine()}, {multiprocessing.cpu_count()} cores",
+                date=time.strftime("%Y-%m-%d %H:%M"), load_average_after=load)
+    out.with_suffix(".json").write_text(json.dumps(dict(meta=meta, rows=rows), indent=2, default=float))
+    ok = [r for r in rows if r["status"] == "ok"]
+    lines = [f"# Cleaned point-cloud outputs ({meta['date']}, {meta['machine']}, load average after {' '.join(load)})",
+             "", "Clouds made as `bench_pointcloud.py` makes them, reconstructed by "
+             "`voro3d.pointcloud.reconstruct_points` (grid auto); metrics as in `clean_32_64.md`, against the "
+             "mesh the cloud was sampled from; Marching Cubes of that mesh's SDF at the same grid for reference.",
+             "", "| surface | clouds | " + " | ".join(name for name, _, _ in METRICS) + " | watertight % |",
+             "|---|---|" + "---|" * len(METRICS) + "---|"]
+    for surface in SURFACES:
+        if ok:
+            cells = [fmt.format(np.mean([r[surface][key] for r in ok])) for _, key, fmt in METRICS]
+            lines.append(f"| {surface} | {len(ok)} | " + " | ".join(cells) +
+                         f" | {100 * np.mean([r[surface]['watertight'] for r in ok]):.0f} |")
+    lines += ["", "| shape | condition | grid | faces before -> after | off-normal % unclean / clean / MC | "
+              "slivers % unclean / clean | CD unclean / clean | F1 unclean / clean | NC unclean / clean | "
+              "clean s | reconstruct s | watertight | distance max / bound (voxels) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r["status"] != "ok":
+            lines.append(f"| {r['shape']} | {r['condition']} | | failed: {r['error']} |" + " |" * 9)
+            continue
+        u, c, m = r["uncleaned"], r["cleaned"], r["mc"]
+        lines.append(
+            f"| {r['shape']} | {r['condition']} | {r['grid']} | {u['n_triangles']} -> {c['n_triangles']} | "
+            f"{u['off_normal_share']:.1%} / {c['off_normal_share']:.1%} / {m['off_normal_share']:.1%} | "
+            f"{u['sliver_share']:.1%} / {c['sliver_share']:.1%} | {u['chamfer_x1e5']:.3f} / {c['chamfer_x1e5']:.3f} | "
+            f"{u['f1']:.3f} / {c['f1']:.3f} | {u['nc']:.3f} / {c['nc']:.3f} | {r['clean_seconds']:.2f} | "
+            f"{r['reconstruct_seconds']:.1f} | {c['watertight']} | "
+            f"{max(r['distance_to_uncleaned_max'], r['distance_from_uncleaned_max']):.3f} / {r['distance_bound']:.2f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
 
@@ -262,6 +367,8 @@ def main():
     parser.add_argument("--grids", type=int, nargs="+", default=[32, 64])
     parser.add_argument("--names", nargs="+", default=None, help="only these files of the folder")
     parser.add_argument("--limit", type=int, default=None, help="first N meshes only")
+    parser.add_argument("--refit", action="store_true", help="fit again instead of reading out/bench_clean/")
+    parser.add_argument("--clouds", action="store_true", help="the point-cloud outputs instead of the meshes")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     from voro3d.io import MESH_SUFFIXES
@@ -270,11 +377,25 @@ def main():
     if args.names:
         paths = [p for p in paths if p.name in args.names]
     paths = paths[: args.limit]
+    if args.clouds:
+        out = args.out or ROOT / "benchmarks" / "results" / "clean_clouds"
+        rows = []
+        for path in [p for p in paths if p.name in CLOUD_SHAPES]:
+            for condition in CLOUD_CONDITIONS:
+                rows.append(run_in_process(_one_cloud, str(path), condition))
+                r = rows[-1]
+                print(f"{path.name:28s} {condition:14s} " + (
+                    f"faces {r['uncleaned']['n_triangles']} -> {r['cleaned']['n_triangles']} off "
+                    f"{r['uncleaned']['off_normal_share']:.3f} -> {r['cleaned']['off_normal_share']:.3f} "
+                    f"(MC {r['mc']['off_normal_share']:.3f}) wt {r['cleaned']['watertight']}"
+                    if r["status"] == "ok" else f"FAILED {r['error']}"), flush=True)
+                write_cloud_tables(rows, out)
+        return
     out = args.out or ROOT / "benchmarks" / "results" / f"clean_{'_'.join(map(str, args.grids))}"
     rows = []
     for grid in args.grids:
         for path in paths:
-            row = run_shape(path, grid)
+            row = run_in_process(_one, str(path), grid, args.refit)
             rows.append(row)
             if row["status"] == "ok":
                 u, c, m = row["uncleaned"], row["cleaned"], row["mc"]
