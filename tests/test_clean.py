@@ -117,6 +117,9 @@ def test_zero_distance_changes_nothing_that_moves_the_surface():
 
 
 def test_clean_returns_an_open3d_mesh_with_normals_and_is_deterministic():
+    import voro3d
+
+    assert voro3d.clean is clean
     vertices, triangles = lattice_ball()
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
     a, b = clean(mesh), clean((vertices.copy(), triangles.copy()))

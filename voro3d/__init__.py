@@ -29,6 +29,7 @@ _PUBLIC = {
     "check_watertight": "watertight",
     "WatertightReport": "watertight",
     "evaluate": "metrics",
+    "clean": "cleaning",
     "render_meshes": "render",
     "predict": "infer",
     "predict_from_mesh": "infer",
