@@ -1,7 +1,9 @@
-// Cleaning of a closed, oriented, manifold triangle surface (a VoroMesh): nearly coincident
-// vertices merged, short edges collapsed with CGAL's Surface_mesh_simplification, then edges
-// flipped where that raises the smallest angle. Frozen vertices are never moved, merged or flipped
-// around, so a second pass can leave a patch as it was. Self-intersections are tested by the caller.
+// Cleaning of a closed, oriented, manifold triangle surface (a VoroMesh), in passes of: nearly
+// coincident vertices merged, short edges collapsed with CGAL's Surface_mesh_simplification, then
+// edges flipped where that raises the smallest angle. Frozen vertices are never moved, merged or
+// flipped around. Self-intersections are tested by the caller (voro3d/cleaning.py), which freezes
+// the input vertices behind crossing triangles and has the changes, logged by clean_surface, made
+// again without them by replay_clean.
 //
 // Distance bound. Every face F carries a bound E(F) (0 at the start) such that every point of F is
 // within E(F) of the input surface and every point of the input that F stands for is within E(F)
