@@ -17,8 +17,8 @@ per face, both ways: every point of the result is that close to the input and ev
 input that close to the result) or takes the enclosed volume more than ``max_volume_change`` from
 the input's. Then the result is tested: closed, edge- and vertex-manifold, consistently oriented
 (by construction: every change is a CGAL Euler operation under the link condition) and free of
-crossing triangles (CGAL's exact predicates). Where triangles cross, the input vertices behind them
-and their neighbours are frozen and the first round's changes are made again from the input, in
+crossing triangles (CGAL's exact predicates). Where triangles cross, the input vertices behind their
+corners are frozen and the first round's changes are made again from the input, in
 order, less those that touch a frozen vertex (a change whose patch differs from the first round's
 is checked again as in the first round), until nothing crosses. Frozen vertices are never moved,
 merged or flipped around, so a triangle all of whose corners are frozen is an input triangle and
@@ -218,11 +218,11 @@ def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distan
         crossing = crossing[~original]
         if not len(crossing):
             break
-        # Freeze the input vertices behind the crossing triangles and their neighbours.
-        corners = np.unique(new_triangles[crossing.reshape(-1)])
-        around = np.isin(new_triangles, corners).any(axis=1)
+        # Freeze the input vertices behind the corners of the crossing triangles. (With their
+        # neighbours too, a thin CAD part, abc_00000001 at 64^3, froze 1157 vertices instead of 287
+        # and kept 19% slivers instead of 8%.)
         patch = np.zeros(new_vertices.shape[0], bool)
-        patch[new_triangles[around]] = True
+        patch[new_triangles[crossing.reshape(-1)]] = True
         grow = mapped & patch[np.where(mapped, label, 0)] & ~frozen
         if not grow.any():  # a crossing pair of new triangles has a merged or unfrozen corner
             raise RuntimeError("clean_surface: a crossing left no vertex to freeze (a bug)")
