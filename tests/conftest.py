@@ -40,3 +40,26 @@ def scans() -> Path:
     if not SCAN_DATA.is_dir():
         pytest.skip(f"scans not found at {SCAN_DATA}")
     return SCAN_DATA
+
+
+@pytest.fixture
+def gil_free():
+    """``gil_free(call)`` runs ``call`` in a thread while this one spins, and returns the call's
+    wall time and the longest gap between two spins: a call that holds the GIL stops the spinning
+    for about its whole length."""
+    import threading
+    import time
+
+    def probe(call):
+        done = threading.Event()
+        worker = threading.Thread(target=lambda: (call(), done.set()))
+        start = last = time.perf_counter()
+        worker.start()
+        longest = 0.0
+        while not done.is_set():
+            now = time.perf_counter()
+            longest, last = max(longest, now - last), now
+        worker.join()
+        return time.perf_counter() - start, longest
+
+    return probe

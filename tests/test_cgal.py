@@ -1,6 +1,4 @@
 """The compiled extension voro3d._cgal: its answers, every input check, and the GIL released around CGAL."""
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -88,16 +86,7 @@ def test_self_intersecting_pairs_rejects_bad_input(vertices, triangles, error, m
         _cgal.self_intersecting_pairs(vertices, triangles)
 
 
-def test_delaunay_releases_the_gil():
+def test_delaunay_releases_the_gil(gil_free):
     points = RNG.random((100_000, 3))
-    done = threading.Event()
-    worker = threading.Thread(target=lambda: (_cgal.delaunay_tetrahedra(points), done.set()))
-    start = last = time.perf_counter()
-    worker.start()
-    longest = 0.0
-    while not done.is_set():  # this thread keeps running only while the worker does not hold the GIL
-        now = time.perf_counter()
-        longest, last = max(longest, now - last), now
-    worker.join()
-    elapsed = time.perf_counter() - start
+    elapsed, longest = gil_free(lambda: _cgal.delaunay_tetrahedra(points))
     assert elapsed > 0.2 and longest < 0.5 * elapsed, (longest, elapsed)

@@ -3,8 +3,6 @@ search, thread-count independence, every input check, the GIL released, and a fi
 good as through torch."""
 import subprocess
 import sys
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -143,21 +141,11 @@ def test_bad_input(kwargs, error, match):
         _fitkernel.voroloss(**arguments)
 
 
-def test_releases_the_gil():
+def test_releases_the_gil(gil_free):
     samples, generators = _band(n=400_000)
     candidates = knn_candidates(samples, generators, k=11)
     grad = np.zeros_like(generators)
-    done = threading.Event()
-    worker = threading.Thread(
-        target=lambda: ([_fitkernel.voroloss(samples, generators, candidates, grad) for _ in range(3)], done.set()))
-    start = last = time.perf_counter()
-    worker.start()
-    longest = 0.0
-    while not done.is_set():  # this thread keeps running only while the worker does not hold the GIL
-        now = time.perf_counter()
-        longest, last = max(longest, now - last), now
-    worker.join()
-    elapsed = time.perf_counter() - start
+    elapsed, longest = gil_free(lambda: [_fitkernel.voroloss(samples, generators, candidates, grad) for _ in range(3)])
     assert elapsed > 0.1 and longest < 0.5 * elapsed, (longest, elapsed)
 
 
