@@ -176,6 +176,13 @@ def test_bad_input_raises_value_error(mesh, options, match):
         clean_surface(*mesh, **options)
 
 
+def test_voxel_size_bad_input():
+    with pytest.raises(ValueError, match="zero area"):
+        voxel_size(np.zeros((4, 3)), tetrahedron()[1])
+    with pytest.raises(ValueError, match="triangles"):
+        voxel_size(tetrahedron()[0], np.zeros((0, 3), int))
+
+
 def test_bad_mesh_type_raises_type_error():
     with pytest.raises(TypeError, match="mesh must be"):
         clean("mesh.ply")
