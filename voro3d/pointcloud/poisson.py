@@ -18,15 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .surface import supported_pieces
+
 __all__ = ["PoissonSurface", "poisson_surface", "poisson_depth"]
 
 # Octree levels per grid: the Poisson mesh is about four times finer than the VoroMesh grid, so
 # its chord error stays well under a voxel (depth 7 and 8 measured within 4% CD of each other).
 MIN_DEPTH, MAX_DEPTH = 6, 10
-# A piece of the Poisson mesh nearest to fewer points than this share of the best-supported
-# piece's (or than MIN_SUPPORT) is debris that stray points grew.
-SUPPORT_SHARE = 0.01
-MIN_SUPPORT = 20
 
 
 def poisson_depth(grid: int) -> int:
@@ -120,22 +118,10 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int) -> Pois
 
 
 def _supported_pieces(vertices, triangles, points):
-    """Drop the connected pieces nearest to too few points (``SUPPORT_SHARE``, ``MIN_SUPPORT``);
-    the best-supported piece always stays, and a cloud of several objects keeps them all."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    n = vertices.shape[0]
-    edges = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    pieces, piece = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),
-                                         directed=False)
-    if pieces <= 1:
+    """The mesh without the pieces the points do not support (:func:`supported_pieces`)."""
+    piece, kept = supported_pieces(vertices, triangles, points)
+    if kept.all():
         return vertices, triangles
-    _, nearest = cKDTree(vertices).query(points, workers=-1)
-    support = np.bincount(piece[nearest], minlength=pieces)
-    kept = support >= max(MIN_SUPPORT, SUPPORT_SHARE * support.max())
-    kept[np.argmax(support)] = True
     used = kept[piece]
     triangles = triangles[used[triangles[:, 0]]]
     remap = np.cumsum(used) - 1

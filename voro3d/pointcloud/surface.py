@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TargetSurface", "target_surface", "imls", "winding_level"]
+__all__ = ["TargetSurface", "target_surface", "imls", "winding_level", "supported_pieces"]
 
 # Neighbours that enter one IMLS evaluation. Gaussian weights beyond ~3 kernel widths vanish;
 # 32 neighbours cover that for the widths used (0.75-1.5 spacings, more on noisy clouds).
@@ -30,6 +30,7 @@ FAR_FIELD_SMOOTHING = 1.5
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
 SUPPORT_SHARE = 0.01
+MIN_SUPPORT = 20
 
 
 @dataclass
@@ -176,7 +177,7 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
 
 
 def target_surface(points, normals, widths, resolution: int, *, dense: bool = False,
-                   min_support: int = 20, level: float | None = None) -> TargetSurface:
+                   min_support: int = MIN_SUPPORT, level: float | None = None) -> TargetSurface:
     """Sample the field on a ``resolution^3`` grid over ``[-1, 1]^3`` and mesh it.
 
     Parameters
@@ -263,18 +264,28 @@ def winding_level(points, normals, areas, offset: float, *, n_probes: int = 2000
     return float(np.clip(0.5 * (np.median(behind) + np.median(front)), 0.0, 0.5))
 
 
-def _drop_unsupported(field, vertices, triangles, points, min_support):
-    """The field with unsupported pieces of surface removed (``field`` itself when none is).
+def supported_pieces(vertices, triangles, points, *, min_support: int = MIN_SUPPORT):
+    """Which connected pieces of a mesh the points support.
 
-    ``vertices, triangles`` are the Marching Cubes mesh of ``field`` in grid-index coordinates.
+    Each piece is supported by the points nearer to one of its vertices than to any other
+    piece's. A piece with fewer than ``min_support`` of them, or fewer than ``SUPPORT_SHARE`` of
+    the best-supported piece's, is debris (the blob that stray points or a noisy patch make);
+    the best-supported piece is always kept, and a cloud of several real objects keeps them all.
 
-    Each connected piece of the zero set (Marching Cubes) is supported by the points nearer to it
-    than to any other piece. A piece with fewer than ``min_support`` of them, or fewer than
-    ``SUPPORT_SHARE`` of the best-supported piece's, is debris: the blob that stray points or a
-    noisy patch make. The solid region it encloses is flipped to outside (or the cavity to
-    inside) unless a kept piece also bounds it. A cloud of two real objects keeps both.
+    Parameters
+    ----------
+    vertices : (v, 3) float64
+    triangles : (t, 3) int64
+    points : (n, 3) float64
+        In the vertices' coordinates.
+    min_support : int
+
+    Returns
+    -------
+    piece : (v,) int
+        Piece of each vertex.
+    kept : (pieces,) bool
     """
-    from scipy import ndimage
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -284,11 +295,27 @@ def _drop_unsupported(field, vertices, triangles, points, min_support):
     pieces, piece = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),
                                          directed=False)
     if pieces <= 1:
-        return field
-    _, nearest = cKDTree(vertices).query((points + 1.0) * (0.5 * (field.shape[0] - 1)), workers=-1)
+        return piece, np.ones(pieces, bool)
+    _, nearest = cKDTree(vertices).query(points, workers=-1)
     support = np.bincount(piece[nearest], minlength=pieces)
     kept = support >= max(min_support, SUPPORT_SHARE * support.max())
     kept[np.argmax(support)] = True
+    return piece, kept
+
+
+def _drop_unsupported(field, vertices, triangles, points, min_support):
+    """The field with unsupported pieces of surface removed (``field`` itself when none is).
+
+    ``vertices, triangles`` are the Marching Cubes mesh of ``field`` in grid-index coordinates.
+
+    The connected pieces of the zero set (Marching Cubes) that the points do not support
+    (:func:`supported_pieces`) are debris: the solid region such a piece encloses is flipped to
+    outside (or the cavity to inside) unless a kept piece also bounds it.
+    """
+    from scipy import ndimage
+
+    piece, kept = supported_pieces(vertices, triangles, (points + 1.0) * (0.5 * (field.shape[0] - 1)),
+                                   min_support=min_support)
     if kept.all():
         return field
     # A Marching Cubes vertex lies on a grid edge; the edge's two nodes are the regions it bounds.
