@@ -303,7 +303,9 @@ def test_timeout_kills_the_shape_and_the_batch_goes_on(tmp_path):
 def test_memory_limit_fails_the_shape_and_is_lifted_after_it_and_eval_adds_metrics(tmp_path):
     source = tmp_path / "sphere.ply"
     save_mesh(example_mesh("sphere"), source)
-    capped = ShapeTask(str(source), str(tmp_path / "out" / "capped.ply"), "fit", 32, 1, 0, None, 1, False, 1)
+    # Grid 64: its samples and candidates (tens of MB) outgrow whatever memory the warm-up freed, which
+    # a grid-32 fit on the compiled CPU loop (a few MB) could reuse without the cap noticing.
+    capped = ShapeTask(str(source), str(tmp_path / "out" / "capped.ply"), "fit", 64, 1, 0, None, 1, False, 1)
     # In a fresh process: this one may already hold freed memory that the fit would reuse
     # without growing its address space, and then the cap never bites.
     with multiprocessing.get_context("spawn").Pool(1) as pool:
