@@ -7,7 +7,8 @@ import pytest
 
 from voro3d.baselines import marching_cubes
 from voro3d.extract import VoroMesh
-from voro3d.infer import DEFAULT_MODEL, NEAR, Predictor, check_sdf, network_input, predict, predict_from_mesh
+from voro3d.infer import (BAND_INPUTS, DEFAULT_MODEL, DENSE_INPUTS, NEAR, Predictor, band_input, check_sdf,
+                          network_input, predict, predict_from_mesh)
 from voro3d.io import fit_frame, mesh_arrays
 from voro3d.metrics import evaluate
 from voro3d.queries import sdf_grid
@@ -89,12 +90,46 @@ def test_module_functions_cache_the_session(tmp_path):
 def test_network_input_crops_to_the_band():
     sdf = _sphere_sdf(64, radius=0.3)
     net_input = network_input(check_sdf(sdf), near=NEAR, margin=10)
-    assert all(n % 2 == 0 for n in net_input.sdf_voxels.shape[2:])
-    assert net_input.sdf_voxels.shape[2] < 64
+    assert tuple(net_input.arrays) == DENSE_INPUTS
+    crop = net_input.arrays["sdf_voxels"][0, 0]
+    assert all(n % 2 == 0 for n in crop.shape)
+    assert crop.shape[0] < 64
     step = 2 / 63
     np.testing.assert_array_less(np.abs(sdf[tuple(net_input.ijk.T)]), NEAR * step)
-    crop = net_input.sdf_voxels[0, 0]
-    np.testing.assert_allclose(crop[tuple(net_input.nodes.T)] * step, sdf[tuple(net_input.ijk.T)], rtol=1e-6)
+    nodes = net_input.arrays["nodes"]
+    np.testing.assert_allclose(crop[tuple(nodes.T)] * step, sdf[tuple(net_input.ijk.T)], rtol=1e-6)
+
+
+def test_band_input_structure():
+    g, context = 40, 3.0
+    sdf = check_sdf((np.linalg.norm(grid_nodes(g) - 0.1, axis=1) - 0.45).reshape(g, g, g))
+    net_input = band_input(sdf, near=NEAR, context=context)
+    arrays = net_input.arrays
+    assert tuple(sorted(arrays)) == tuple(sorted(BAND_INPUTS))
+    step = 2 / (g - 1)
+    band = np.argwhere(np.abs(sdf) < np.float32(context * step))
+    n0 = band.shape[0]
+    np.testing.assert_allclose(arrays["band_sdf"][:, 0] * step, sdf[tuple(band.T)], rtol=1e-6)
+    # The targets are the generator nodes, in the order of ijk.
+    np.testing.assert_array_equal(band[arrays["targets"]], net_input.ijk)
+    np.testing.assert_array_equal(net_input.ijk, network_input(sdf, near=NEAR, margin=0).ijk)
+    # Tap 13 is the node itself; every other tap is the node's neighbour or the absent row n0.
+    neighbours = arrays["neighbours0"]
+    np.testing.assert_array_equal(neighbours[:, 13], np.arange(n0))
+    taps = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    present = neighbours < n0
+    np.testing.assert_array_equal(band[neighbours[present]], (band[:, None, :] + taps[None])[present])
+    expected = {tuple(p) for p in band}
+    assert present.sum() == sum(tuple(p) in expected for p in (band[:, None, :] + taps[None]).reshape(-1, 3))
+    # Each node's parent holds it among its children, at its parity.
+    up, children = arrays["up1"], arrays["children1"]
+    np.testing.assert_array_equal(children[up // 8, up % 8], np.arange(n0))
+    assert (children < n0).sum() == n0 and arrays["neighbours1"].shape == (children.shape[0], 27)
+    up2, children2 = arrays["up2"], arrays["children2"]
+    np.testing.assert_array_equal(children2[up2 // 8, up2 % 8], np.arange(children.shape[0]))
+    np.testing.assert_array_equal(np.unique(band // 4, axis=0).shape[0], children2.shape[0])
+    for name, array in arrays.items():
+        assert array.dtype == (np.float32 if name == "band_sdf" else np.int64), name
 
 
 @pytest.mark.parametrize("sdf, match", [

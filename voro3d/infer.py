@@ -3,19 +3,22 @@
 The pipeline of the paper's §3.2, all numpy except one ONNX call:
 
 1. Nodes of the grid with ``|sdf| < near`` voxels (``near`` stored in the model, 1 for the
-   shipped one) become generators; the grid is cropped to their bounding box plus the network's
-   receptive radius, which leaves their features unchanged (:func:`network_input`).
-2. The network (``voro3d.learn.model.VoroNet`` exported by ``voro3d.learn.export``) reads the
-   cropped SDF, in voxel units, and the ``(i, j, k)`` of those nodes in the crop, and returns per node
-   an offset in voxel units (generator = node + offset * voxel size) and an occupancy logit.
+   shipped one) become generators. What the network reads around them depends on the model
+   (told apart by its ONNX input names): the dense network (``voro3d.learn.model.VoroNet``, the
+   shipped one) reads the grid cropped to their bounding box plus its receptive radius, which
+   leaves their features unchanged (:func:`network_input`); the band network
+   (``voro3d.learn.model.BandNet``) reads the nodes with ``|sdf| < context`` voxels and the
+   neighbour, child and parent indices of its sparse convolutions (:func:`band_input`).
+2. The network (exported by ``voro3d.learn.export``) returns per generator node an offset in
+   voxel units (generator = node + offset * voxel size) and an occupancy logit.
 3. Fallbacks (``fallback=True``): nodes with ``near <= |sdf| < band`` voxels join as fixed
    generators labelled by the SDF sign, so every predicted cell stays within a voxel or two of
    the surface; predicted generators that ended up more than ``far`` voxels from the surface
    take the SDF sign there instead of the network's guess. A wrong prediction then cannot make
    a large artifact.
 
-The ONNX graph takes the node coordinates as an input rather than computing the mask itself, so
-the node set (and the crop) stays visible and testable here, and training (``voro3d.learn``)
+The ONNX graph takes the node indices as inputs rather than computing the mask itself, so the
+node set (and the crop or the band) stays visible and testable here, and training (``voro3d.learn``)
 builds exactly the same input with the same functions.
 """
 from __future__ import annotations
@@ -30,8 +33,9 @@ import numpy as np
 from ._validate import as_sdf_grid
 from .extract import VoroMesh
 
-__all__ = ["BAND", "DEFAULT_MODEL", "INPUT_NAMES", "NEAR", "OUTPUT_NAMES", "NetworkInput", "Predictor", "assemble",
-           "check_sdf", "fixed_generators", "network_input", "predict", "predict_from_mesh", "sdf_at"]
+__all__ = ["BAND", "BAND_INPUTS", "CONTEXT", "DEFAULT_MODEL", "DENSE_INPUTS", "NEAR", "OUTPUT_NAMES", "NetworkInput",
+           "Predictor", "assemble", "band_input", "check_sdf", "fixed_generators", "network_input", "predict",
+           "predict_from_mesh", "sdf_at"]
 
 # The shipped network is package data (its card, config and loss curve are in the repository's
 # models/). voro3d has a compiled extension, so it is never imported from a zip archive and
@@ -48,7 +52,13 @@ BAND = 2.0
 # Predicted generators this many voxels from the surface take the SDF sign (the official code's
 # mask_scale of 2 voxels).
 FAR = 2.0
-INPUT_NAMES = ("sdf_voxels", "nodes")
+# The inputs of the two networks of voro3d.learn.model: the dense one (VoroNet) reads the cropped
+# grid, the band one (BandNet) the band's nodes and their lattice structure (band_input).
+DENSE_INPUTS = ("sdf_voxels", "nodes")
+BAND_INPUTS = ("band_sdf", "neighbours0", "neighbours1", "neighbours2", "children1", "children2", "up1", "up2",
+               "targets")
+# Band of a band model without metadata: receptive context around the generator nodes, in voxels.
+CONTEXT = 4.0
 OUTPUT_NAMES = ("offsets", "logits")
 
 
@@ -58,18 +68,16 @@ class NetworkInput:
 
     Attributes
     ----------
-    sdf_voxels : (1, 1, d, h, w) float32
-        The SDF divided by the voxel size, cropped around the nodes; ``d, h, w`` even.
-    nodes : (n, 3) int64
-        Indices ``(i, j, k)`` of the generator nodes in the ``(d, h, w)`` crop.
+    arrays : dict of str to numpy.ndarray
+        The model's inputs by name (:data:`DENSE_INPUTS` from :func:`network_input` or
+        :data:`BAND_INPUTS` from :func:`band_input`), ready for onnxruntime or ``torch.from_numpy``.
     ijk : (n, 3) int64
-        The same nodes as indices into the full grid.
+        Indices of the generator nodes in the full grid, in the order of the network's outputs.
     step : float
         Voxel size ``2 / (g - 1)`` of the ``[-1, 1]^3`` grid.
     """
 
-    sdf_voxels: np.ndarray
-    nodes: np.ndarray
+    arrays: dict
     ijk: np.ndarray
     step: float
 
@@ -91,8 +99,19 @@ def check_sdf(sdf) -> np.ndarray:
     return as_sdf_grid(sdf, "sdf", min_size=4, dtype=np.float32)
 
 
+def _near_nodes(sdf: np.ndarray, near: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The SDF in voxels, the ``(n, 3)`` int64 nodes with ``|sdf| < near`` voxels (C order), the voxel size."""
+    step = 2.0 / (sdf.shape[0] - 1)
+    voxels = sdf / np.float32(step)
+    ijk = np.argwhere(np.abs(voxels) < near)
+    if ijk.shape[0] == 0:
+        raise ValueError(f"sdf has no node within {near:.3g} voxels of the surface; it must be a signed "
+                         "distance in the units of the [-1, 1]^3 grid")
+    return voxels, ijk.astype(np.int64), step
+
+
 def network_input(sdf: np.ndarray, *, near: float, margin: int) -> NetworkInput:
-    """Nodes with ``|sdf| < near`` voxels, and the SDF crop around them that the network reads.
+    """Input of the dense network: nodes with ``|sdf| < near`` voxels and the SDF crop around them.
 
     Parameters
     ----------
@@ -105,25 +124,98 @@ def network_input(sdf: np.ndarray, *, near: float, margin: int) -> NetworkInput:
         features equal those computed on the whole grid. The crop starts at even indices (the
         network halves the resolution once) and an odd-sized crop gets one repeated layer.
 
+    Returns
+    -------
+    NetworkInput
+        ``arrays``: ``sdf_voxels (1, 1, d, h, w)`` float32, the crop divided by the voxel size
+        (``d, h, w`` even), and ``nodes (n, 3)`` int64, the generator nodes' indices in the crop.
+
     Raises
     ------
     ValueError
         No node lies within ``near`` voxels of the surface (not a distance field in grid units).
     """
+    voxels, ijk, step = _near_nodes(sdf, near)
     g = sdf.shape[0]
-    step = 2.0 / (g - 1)
-    voxels = sdf / np.float32(step)
-    ijk = np.argwhere(np.abs(voxels) < near)
-    if ijk.shape[0] == 0:
-        raise ValueError(f"sdf has no node within {near:.3g} voxels of the surface; it must be a signed "
-                         "distance in the units of the [-1, 1]^3 grid")
     low = np.maximum(ijk.min(axis=0) - margin, 0)
     low -= low % 2
     high = np.minimum(ijk.max(axis=0) + margin + 1, g)
     crop = voxels[low[0]:high[0], low[1]:high[1], low[2]:high[2]]
     crop = np.pad(crop, [(0, int(n % 2)) for n in crop.shape], mode="edge")
-    ijk = ijk.astype(np.int64)
-    return NetworkInput(np.ascontiguousarray(crop[None, None]), ijk - low, ijk, step)
+    return NetworkInput({"sdf_voxels": np.ascontiguousarray(crop[None, None]), "nodes": ijk - low}, ijk, step)
+
+
+# The 27 taps of a 3x3x3 neighbourhood in C order (a dense convolution's weight order).
+_TAPS = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _neighbours(coords: np.ndarray, size: int) -> np.ndarray:
+    """``(n, 27)`` int64 row of each 3^3 neighbour of ``(n, 3)`` nodes in a ``size^3`` lattice; ``n`` if absent."""
+    n = coords.shape[0]
+    side = size + 2  # one layer of absent nodes around the lattice
+    volume = np.full(side**3, n, np.int64)
+    flat = ((coords[:, 0] + 1) * side + coords[:, 1] + 1) * side + coords[:, 2] + 1
+    volume[flat] = np.arange(n)
+    return volume[flat[:, None] + ((_TAPS[:, 0] * side + _TAPS[:, 1]) * side + _TAPS[:, 2])[None, :]]
+
+
+def band_input(sdf: np.ndarray, *, near: float, context: float, levels: int = 3) -> NetworkInput:
+    """Input of the band network: the nodes with ``|sdf| < context`` voxels and their lattice structure.
+
+    Level 0 is the band itself; level ``l + 1`` has one node per 2x2x2 block of level ``l``
+    holding any of its nodes. Every index array points into the rows of a level's feature table,
+    with one extra row (index = that level's node count) standing for an absent node, which the
+    network fills with zeros: a submanifold convolution sees only nodes of the band.
+
+    Parameters
+    ----------
+    sdf : (g, g, g) float32
+        From :func:`check_sdf`.
+    near : float
+        Generator nodes: ``|sdf| < near`` voxels (a subset of the band, ``near <= context``).
+    context : float
+        Band of nodes the network reads, in voxels.
+    levels : int
+        Lattice levels (strides 1, 2, 4, ...).
+
+    Returns
+    -------
+    NetworkInput
+        ``arrays`` (:data:`BAND_INPUTS` for 3 levels): ``band_sdf (n0, 1)`` float32, the SDF in
+        voxels at the band nodes; ``neighbours<l> (n_l, 27)`` int64, the 3^3 neighbours of each
+        level-``l`` node; ``children<l> (n_l, 8)`` int64, the level-``l - 1`` nodes of each
+        level-``l`` node's block, in C order of their parity; ``up<l> (n_{l-1},)`` int64,
+        ``8 * parent + parity`` of each level-``l - 1`` node; ``targets (k,)`` int64, rows of
+        the generator nodes in level 0.
+
+    Raises
+    ------
+    ValueError
+        No node lies within ``near`` voxels of the surface.
+    """
+    voxels, ijk, step = _near_nodes(sdf, near)
+    coords = np.argwhere(np.abs(voxels) < context).astype(np.int64)
+    # Both lists are in C order and the targets are a subset of the band, so a sorted search finds them.
+    size = sdf.shape[0]
+    flat = (coords[:, 0] * size + coords[:, 1]) * size + coords[:, 2]
+    targets = np.searchsorted(flat, (ijk[:, 0] * size + ijk[:, 1]) * size + ijk[:, 2])
+    arrays = {"band_sdf": voxels[tuple(coords.T)][:, None].astype(np.float32)}
+    for level in range(levels):
+        arrays[f"neighbours{level}"] = _neighbours(coords, size)
+        if level + 1 == levels:
+            break
+        half = (size + 1) // 2
+        block = coords // 2
+        unique, parent = np.unique((block[:, 0] * half + block[:, 1]) * half + block[:, 2], return_inverse=True)
+        parity = (coords % 2) @ np.array([4, 2, 1])
+        children = np.full((unique.size, 8), coords.shape[0], np.int64)
+        children[parent, parity] = np.arange(coords.shape[0])
+        arrays[f"children{level + 1}"] = children
+        arrays[f"up{level + 1}"] = (8 * parent + parity).astype(np.int64)
+        coords = np.stack([unique // (half * half), unique // half % half, unique % half], axis=1)
+        size = half
+    arrays["targets"] = targets.astype(np.int64)
+    return NetworkInput(arrays, ijk, step)
 
 
 def sdf_at(sdf: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -197,8 +289,8 @@ class Predictor:
     FileNotFoundError
         No file at ``model``.
     ValueError
-        The file is not a loadable ONNX model with inputs ``sdf_voxels, nodes`` and outputs
-        ``offsets, logits``.
+        The file is not a loadable ONNX model with inputs :data:`DENSE_INPUTS` or
+        :data:`BAND_INPUTS` and outputs ``offsets, logits``.
     """
 
     def __init__(self, model=None, *, threads: int | None = None):
@@ -216,21 +308,26 @@ class Predictor:
             raise ValueError(f"{path} is not a loadable ONNX model: {error}") from error
         inputs = tuple(i.name for i in self.session.get_inputs())
         outputs = tuple(o.name for o in self.session.get_outputs())
-        if inputs != INPUT_NAMES or outputs != OUTPUT_NAMES:
-            raise ValueError(f"{path} must take inputs {INPUT_NAMES} and give outputs {OUTPUT_NAMES}, "
-                             f"got {inputs} -> {outputs}")
+        if inputs not in (DENSE_INPUTS, BAND_INPUTS) or outputs != OUTPUT_NAMES:
+            raise ValueError(f"{path} must take inputs {DENSE_INPUTS} or {BAND_INPUTS} and give outputs "
+                             f"{OUTPUT_NAMES}, got {inputs} -> {outputs}")
         self.path = path
         self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
         self.near = float(self.metadata.get("near", NEAR))
-        self.margin = int(self.metadata.get("receptive_radius", 10))
+        if inputs == BAND_INPUTS:
+            context = float(self.metadata.get("context", CONTEXT))
+            self.network_input = functools.partial(band_input, near=self.near, context=context)
+        else:
+            margin = int(self.metadata.get("receptive_radius", 10))
+            self.network_input = functools.partial(network_input, near=self.near, margin=margin)
 
     def run(self, sdf) -> tuple[NetworkInput, np.ndarray, np.ndarray]:
         """The network step alone: validated input, ``(n, 3)`` offsets in voxels, ``(n,)`` logits."""
         return self._run(check_sdf(sdf))
 
     def _run(self, sdf: np.ndarray):
-        net_input = network_input(sdf, near=self.near, margin=self.margin)
-        offsets, logits = self.session.run(None, {"sdf_voxels": net_input.sdf_voxels, "nodes": net_input.nodes})
+        net_input = self.network_input(sdf)
+        offsets, logits = self.session.run(None, net_input.arrays)
         return net_input, offsets, logits
 
     def predict(self, sdf, *, fallback: bool = True) -> VoroMesh:

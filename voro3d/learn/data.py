@@ -2,8 +2,9 @@
 
 Nothing is downloaded. :func:`cad_shape` builds ABC-like parts with manifold3d booleans (boxes,
 chamfered and rounded boxes, cylinders, cones, spheres, tori, tubes and prisms, unions of a few
-of them minus holes, pockets and slots), :func:`organic_shape` smooth bumpy bodies (the level
-set of a sum of stretched Gaussians with ripples), both deterministic given a seed. :func:`build_dataset` puts
+of them minus holes, pockets and slots), :func:`thin_shape` thin-walled shells and plates,
+:func:`organic_shape` smooth bumpy bodies (the level set of a sum of stretched Gaussians with
+ripples), optionally cut by planes into sharp-smooth mixes; all deterministic given a seed. :func:`build_dataset` puts
 each shape (or each closed mesh of an optional folder) in the fit frame and caches what training
 needs as one ``.npz`` per shape:
 
@@ -16,6 +17,7 @@ needs as one ``.npz`` per shape:
 """
 from __future__ import annotations
 
+import functools
 import json
 import logging
 from dataclasses import dataclass
@@ -28,7 +30,7 @@ from ..io import MESH_SUFFIXES, atomic_path, fit_frame, load_mesh, mesh_arrays
 from ..queries import InsideOutside, sdf_grid
 from ..sampling import sample_surface
 
-__all__ = ["DatasetSpec", "ShapeSet", "build_dataset", "cad_shape", "organic_shape"]
+__all__ = ["DatasetSpec", "ShapeSet", "build_dataset", "cad_shape", "organic_shape", "thin_shape"]
 
 log = logging.getLogger(__name__)
 
@@ -171,7 +173,68 @@ def cad_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64)
 
 
-def organic_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
+def thin_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A random thin-walled part: an opened shell, or plates, fins and ribs, walls about 1-3 voxels at 64^3.
+
+    A shell is a solid minus its copy shrunk about its centre by the wall thickness along every
+    axis, usually cut open by a box; plates are two to five thin boxes or discs, mostly
+    axis-aligned, joined at random points of each other's bounding boxes. Holes may pierce
+    either. The walls (0.02-0.07 of a part of unit size) are what neither the shells nor the
+    solids of :func:`cad_shape` have: surfaces a voxel or two apart with opposite normals.
+
+    Parameters
+    ----------
+    seed : int
+
+    Returns
+    -------
+    vertices : (v, 3) float64
+        Arbitrary units (about unit size).
+    triangles : (t, 3) int64
+        Closed, manifold, outward-oriented.
+    """
+    from manifold3d import Manifold, OpType
+
+    rng = np.random.default_rng(seed)
+    while True:
+        wall = rng.uniform(0.02, 0.07)
+        if rng.random() < 0.5:
+            base = _primitive(rng, 1.0)
+            low, high = (np.asarray(v) for v in np.split(np.asarray(base.bounding_box()), 2))
+            centre, half = (low + high) / 2, (high - low) / 2
+            inner = base.translate(-centre).scale(np.maximum(half - wall, 0.1 * half) / half).translate(centre)
+            solid = base - inner
+            if rng.random() < 0.7:
+                opening = Manifold.cube(2 * half * rng.uniform(0.5, 1.2, 3), center=True)
+                side = rng.choice([-1.0, 1.0], 3) * (np.arange(3) == rng.integers(3))  # one face, pushed out
+                solid = solid - opening.translate(centre + half * side)
+        else:
+            plates = []
+            low, high = -0.5 * np.ones(3), 0.5 * np.ones(3)
+            for _ in range(rng.integers(2, 6)):
+                extent = rng.uniform(0.3, 1.0, 3)
+                extent[rng.integers(3)] = wall
+                if rng.random() < 0.3:
+                    plate = Manifold.cylinder(wall, extent.max() / 2, circular_segments=CIRCLE_SEGMENTS, center=True)
+                else:
+                    plate = Manifold.cube(extent, center=True)
+                anchor = rng.uniform(low, high) if plates else np.zeros(3)
+                plates.append(_place(plate, _rotation(rng, axis_aligned=rng.random() < 0.8), anchor))
+                low, high = (np.asarray(v) for v in np.split(np.asarray(plates[-1].bounding_box()), 2))
+            solid = Manifold.batch_boolean(plates, OpType.Add)
+        low, high = (np.asarray(v) for v in np.split(np.asarray(solid.bounding_box()), 2))
+        holes = [_place(_cutter(rng, float((high - low).max())), _rotation(rng, axis_aligned=True),
+                        rng.uniform(low, high)) for _ in range(rng.integers(0, 3))]
+        if holes:
+            solid = solid - Manifold.batch_boolean(holes, OpType.Add)
+        solid = _place(solid, _rotation(rng, axis_aligned=rng.random() < 0.6), np.zeros(3))
+        if solid.is_empty() or solid.status().name != "NoError" or solid.volume() < 1e-4:
+            continue
+        mesh = solid.to_mesh()
+        return np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64)
+
+
+def organic_shape(seed: int, *, cut: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """A random smooth, bumpy body, like the scanned and sculpted meshes of Thingi or animals.
 
     The level set ``f = 1/2`` of ``f(x) = sum_i exp(-|A_i (x - c_i)|^2)`` over two to eight
@@ -182,6 +245,11 @@ def organic_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     seed : int
+    cut : bool, keyword-only
+        Intersect the body with one to three random half-spaces and drill a hole through it
+        half of the time: smooth surfaces meeting flat ones at sharp edges, as in sculpted or
+        machined organic parts. (The zero set of the maximum of two implicit functions is the
+        intersection of their insides, whatever their scales.)
 
     Returns
     -------
@@ -205,7 +273,18 @@ def organic_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
             wave = rng.normal(size=3)
             wave *= rng.uniform(6.0, 20.0) / np.linalg.norm(wave)
             field += rng.uniform(0.0, 0.06) * np.sin(nodes @ wave + rng.uniform(0, 2 * np.pi))
-        sdf = (0.5 - field).reshape((ORGANIC_RESOLUTION,) * 3)
+        sdf = 0.5 - field
+        if cut:
+            for _ in range(rng.integers(1, 4)):
+                normal = rng.normal(size=3)
+                sdf = np.maximum(sdf, nodes @ (normal / np.linalg.norm(normal)) - rng.uniform(-0.2, 0.4))
+            if rng.random() < 0.5:
+                axis = rng.normal(size=3)
+                axis /= np.linalg.norm(axis)
+                offset = nodes - rng.uniform(-0.3, 0.3, 3)
+                radial = np.linalg.norm(offset - np.outer(offset @ axis, axis), axis=1)
+                sdf = np.maximum(sdf, rng.uniform(0.04, 0.15) - radial)
+        sdf = sdf.reshape((ORGANIC_RESOLUTION,) * 3)
         if sdf.min() >= 0 or (sdf[[0, -1]] <= 0).any() or (sdf[:, [0, -1]] <= 0).any() or (sdf[..., [0, -1]] <= 0).any():
             continue
         vertices, triangles = marching_cubes(sdf)
@@ -217,7 +296,12 @@ def organic_shape(seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class DatasetSpec:
-    """What :func:`build_dataset` caches; a cache is reused only when the spec matches."""
+    """What :func:`build_dataset` caches.
+
+    A cache is reused when the fields that decide a file's content match (:data:`CONTENT_KEYS`);
+    the counts may differ, since shape ``i`` of a kind is the same file in every set, so a cache
+    grows (or serves a smaller set) without being rebuilt.
+    """
 
     n_shapes: int
     grids: tuple[int, ...]
@@ -225,10 +309,17 @@ class DatasetSpec:
     n_samples: int
     mesh_dir: str | None
     n_organic: int = 0
+    n_thin: int = 0
+    n_cut: int = 0
 
     def as_dict(self) -> dict:
         return {"version": DATASET_VERSION, "n_shapes": self.n_shapes, "n_organic": self.n_organic,
-                "grids": list(self.grids), "seed": self.seed, "n_samples": self.n_samples, "mesh_dir": self.mesh_dir}
+                "n_thin": self.n_thin, "n_cut": self.n_cut, "grids": list(self.grids), "seed": self.seed,
+                "n_samples": self.n_samples, "mesh_dir": self.mesh_dir}
+
+
+# Spec fields that decide the content of a cached file.
+CONTENT_KEYS = ("version", "grids", "seed", "n_samples", "mesh_dir")
 
 
 def _shape_record(vertices, triangles, grids, n_samples, seed) -> dict:
@@ -245,12 +336,14 @@ def _shape_record(vertices, triangles, grids, n_samples, seed) -> dict:
 
 
 def build_dataset(out_dir, n_shapes: int, *, grid=(32, 64), seed: int = 0, n_samples: int = 50_000,
-                  mesh_dir=None, n_organic: int = 0) -> list[Path]:
+                  mesh_dir=None, n_organic: int = 0, n_thin: int = 0, n_cut: int = 0) -> list[Path]:
     """Generate (or reuse) the cached training set in ``out_dir``.
 
     Shape ``i`` is ``cad_shape`` of a seed derived from ``(seed, i)``, so a cache can be grown
     or rebuilt after a crash and every file stays the same; files already present are kept.
-    ``n_organic`` :func:`organic_shape` bodies follow, with seeds from ``(seed, "organic")``.
+    ``n_organic`` :func:`organic_shape` bodies follow, with seeds from ``(seed, "organic")``, then
+    ``n_thin`` :func:`thin_shape` parts and ``n_cut`` cut organic bodies (``organic_shape(...,
+    cut=True)``), each kind with its own seed sequence.
     Closed meshes from ``mesh_dir`` follow the generated shapes (sorted by name); open or
     unreadable ones are skipped with a warning, since no inside test exists for them.
 
@@ -268,8 +361,8 @@ def build_dataset(out_dir, n_shapes: int, *, grid=(32, 64), seed: int = 0, n_sam
         Surface samples per shape.
     mesh_dir : str or os.PathLike, optional, keyword-only
         A folder of real meshes to add (any :data:`voro3d.io.MESH_SUFFIXES`).
-    n_organic : int, keyword-only
-        Generated organic bodies, ``>= 0``.
+    n_organic, n_thin, n_cut : int, keyword-only
+        Generated organic bodies, thin-walled parts and cut organic bodies, each ``>= 0``.
 
     Returns
     -------
@@ -279,7 +372,8 @@ def build_dataset(out_dir, n_shapes: int, *, grid=(32, 64), seed: int = 0, n_sam
     Raises
     ------
     ValueError
-        Bad sizes, or ``out_dir`` holds a cache built with a different spec.
+        Bad sizes, or ``out_dir`` holds a cache built with different content fields
+        (:data:`CONTENT_KEYS`).
     FileNotFoundError
         ``mesh_dir`` does not exist.
     """
@@ -289,6 +383,8 @@ def build_dataset(out_dir, n_shapes: int, *, grid=(32, 64), seed: int = 0, n_sam
     grids = tuple(sorted({positive_int(g, "grid", minimum=4) for g in np.atleast_1d(grid).tolist()}))
     n_samples = positive_int(n_samples, "n_samples")
     n_organic = positive_int(n_organic, "n_organic", minimum=0)
+    n_thin = positive_int(n_thin, "n_thin", minimum=0)
+    n_cut = positive_int(n_cut, "n_cut", minimum=0)
     mesh_files = []
     if mesh_dir is not None:
         mesh_dir = Path(mesh_dir)
@@ -296,20 +392,26 @@ def build_dataset(out_dir, n_shapes: int, *, grid=(32, 64), seed: int = 0, n_sam
             raise FileNotFoundError(f"mesh_dir {mesh_dir} is not a folder")
         mesh_files = sorted(p for p in mesh_dir.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     spec = DatasetSpec(n_shapes, grids, int(seed), n_samples, None if mesh_dir is None else str(mesh_dir.resolve()),
-                       n_organic)
+                       n_organic, n_thin, n_cut)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     index = out_dir / "index.json"
     if index.is_file():
         cached = json.loads(index.read_text())
-        if {k: v for k, v in cached.items() if k != "files"} != spec.as_dict():
-            raise ValueError(f"out_dir {out_dir} holds a dataset built with {cached}, not {spec.as_dict()}")
+        wanted = spec.as_dict()
+        if any(cached.get(key) != wanted[key] for key in CONTENT_KEYS):
+            built = {key: cached.get(key) for key in CONTENT_KEYS}
+            raise ValueError(f"out_dir {out_dir} holds a dataset built with {built}, "
+                             f"not { {key: wanted[key] for key in CONTENT_KEYS} }")
 
     seeds = np.random.SeedSequence(seed).generate_state(n_shapes + len(mesh_files), dtype=np.uint32)
     files = []
-    organic_seeds = np.random.SeedSequence([seed, 0x0A6]).generate_state(n_organic, dtype=np.uint32)
+    makers = {"organic": (organic_shape, np.random.SeedSequence([seed, 0x0A6]).generate_state(n_organic, np.uint32)),
+              "thin": (thin_shape, np.random.SeedSequence([seed, 0x7A1]).generate_state(n_thin, np.uint32)),
+              "cut": (functools.partial(organic_shape, cut=True),
+                      np.random.SeedSequence([seed, 0xC07]).generate_state(n_cut, np.uint32))}
     jobs = [(f"shape_{i:05d}.npz", i, None) for i in range(n_shapes)]
-    jobs += [(f"organic_{i:05d}.npz", i, "organic") for i in range(n_organic)]
+    jobs += [(f"{kind}_{i:05d}.npz", i, kind) for kind in makers for i in range(len(makers[kind][1]))]
     jobs += [(f"mesh_{path.stem}.npz", n_shapes + j, path) for j, path in enumerate(mesh_files)]
     for name, i, path in tqdm(jobs, desc="shapes", unit="shape", leave=False):
         target = out_dir / name
@@ -317,8 +419,9 @@ def build_dataset(out_dir, n_shapes: int, *, grid=(32, 64), seed: int = 0, n_sam
             try:
                 if path is None:
                     vertices, triangles, shape_seed = *cad_shape(int(seeds[i])), int(seeds[i])
-                elif path == "organic":
-                    vertices, triangles, shape_seed = *organic_shape(int(organic_seeds[i])), int(organic_seeds[i])
+                elif isinstance(path, str):
+                    make, kind_seeds = makers[path]
+                    vertices, triangles, shape_seed = *make(int(kind_seeds[i])), int(kind_seeds[i])
                 else:
                     vertices, triangles, shape_seed = *mesh_arrays(load_mesh(path)), int(seeds[i])
                 record = _shape_record(vertices, triangles, grids, n_samples, shape_seed)

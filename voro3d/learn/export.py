@@ -1,16 +1,19 @@
-"""ONNX export of a trained :class:`~voro3d.learn.model.VoroNet`, checked against torch.
+"""ONNX export of a trained network of :mod:`voro3d.learn.model`, checked against torch.
 
 The graph (opset 17, torch's TorchScript-based exporter: the dynamo exporter needs onnxscript,
 which voro3d does not depend on) has
 
-* inputs ``sdf_voxels`` ``(1, 1, d, h, w)`` float32 -- the SDF divided by the voxel size,
-  ``d, h, w`` dynamic and even -- and ``nodes`` ``(n, 3)`` int64 -- the nodes' indices in it,
-  ``n`` dynamic;
-* outputs ``offsets`` ``(n, 3)`` float32 in voxel units and ``logits`` ``(n,)`` float32.
+* the inputs of the network's ``network_input``, every axis that depends on the grid dynamic:
+  for :class:`~voro3d.learn.model.BandNet` the arrays of :func:`voro3d.infer.band_input`
+  (:data:`voro3d.infer.BAND_INPUTS`; the graph is gathers, matmuls, adds and ReLUs), for
+  :class:`~voro3d.learn.model.VoroNet` ``sdf_voxels (1, 1, d, h, w)`` float32 and ``nodes (n, 3)``
+  int64 (:data:`voro3d.infer.DENSE_INPUTS`);
+* outputs ``offsets`` ``(n, 3)`` float32 in voxel units and ``logits`` ``(n,)`` float32, one row
+  per generator node.
 
-The dense convolutions run on the whole (cropped) grid, everything after them on the gathered
-nodes. Metadata carries what :class:`voro3d.infer.Predictor` needs to build the input the model
-was trained on (``near``, ``receptive_radius``) and a record of its training.
+Metadata carries what :class:`voro3d.infer.Predictor` needs to build the input the model was
+trained on (``near``; ``context`` of a band model, ``receptive_radius`` of a dense one) and a
+record of its training.
 """
 from __future__ import annotations
 
@@ -22,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..infer import INPUT_NAMES, NEAR, OUTPUT_NAMES, check_sdf, network_input
-from .model import VoroNet, load_checkpoint
+from ..infer import NEAR, OUTPUT_NAMES, check_sdf
+from .model import BandNet, load_checkpoint
 
 __all__ = ["ExportReport", "TOLERANCE", "check_grids", "export_model", "export_onnx"]
 
@@ -74,12 +77,12 @@ def check_grids() -> list[np.ndarray]:
     return grids
 
 
-def export_model(model: VoroNet, out_path, *, near: float, metadata: dict | None = None) -> ExportReport:
+def export_model(model: torch.nn.Module, out_path, *, near: float, metadata: dict | None = None) -> ExportReport:
     """Export ``model`` to ``out_path`` and compare onnxruntime with torch on :func:`check_grids`.
 
     Parameters
     ----------
-    model : VoroNet
+    model : BandNet or VoroNet
     out_path : str or os.PathLike
         ``.onnx`` file, written atomically.
     near : float
@@ -103,17 +106,24 @@ def export_model(model: VoroNet, out_path, *, near: float, metadata: dict | None
 
     model = model.eval()
     out_path = Path(out_path)
-    example = network_input(check_grids()[0], near=near, margin=model.receptive_radius)
-    inputs = (torch.from_numpy(example.sdf_voxels), torch.from_numpy(example.nodes))
-    entries = {"near": repr(float(near)), "receptive_radius": str(model.receptive_radius), "opset": str(OPSET),
-               "model_config": json.dumps(model.config), **{k: str(v) for k, v in (metadata or {}).items()}}
+    example = model.network_input(check_grids()[0], near=near)
+    names = list(model.input_names)
+    inputs = tuple(torch.from_numpy(example.arrays[name]) for name in names)
+    if isinstance(model, BandNet):
+        # Every row count depends on the grid; the 27 taps, 8 children and the channel do not.
+        dynamic = {name: {0: f"{name}_rows"} for name in names}
+        entries = {"context": repr(model.context)}
+    else:
+        dynamic = {"sdf_voxels": {2: "d", 3: "h", 4: "w"}, "nodes": {0: "n"}}
+        entries = {"receptive_radius": str(model.receptive_radius)}
+    dynamic.update(offsets={0: "n"}, logits={0: "n"})
+    entries.update({"near": repr(float(near)), "opset": str(OPSET), "model_config": json.dumps(model.config),
+                    **{k: str(v) for k, v in (metadata or {}).items()}})
     with atomic_path(out_path, suffix=".onnx") as tmp:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notice
-            torch.onnx.export(model, inputs, tmp, dynamo=False, opset_version=OPSET, input_names=list(INPUT_NAMES),
-                              output_names=list(OUTPUT_NAMES),
-                              dynamic_axes={"sdf_voxels": {2: "d", 3: "h", 4: "w"}, "nodes": {0: "n"},
-                                            "offsets": {0: "n"}, "logits": {0: "n"}})
+            torch.onnx.export(model, inputs, tmp, dynamo=False, opset_version=OPSET, input_names=names,
+                              output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic)
         proto = onnx.load(tmp)
         for key, value in entries.items():
             proto.metadata_props.add(key=key, value=value)
@@ -123,13 +133,13 @@ def export_model(model: VoroNet, out_path, *, near: float, metadata: dict | None
         offset_diff = logit_diff = 0.0
         n_nodes = 0
         for sdf in check_grids():
-            net_input = network_input(check_sdf(sdf), near=near, margin=model.receptive_radius)
+            net_input = model.network_input(check_sdf(sdf), near=near)
             with torch.no_grad():
-                offsets, logits = model(torch.from_numpy(net_input.sdf_voxels), torch.from_numpy(net_input.nodes))
-            ort_offsets, ort_logits = session.run(None, {"sdf_voxels": net_input.sdf_voxels, "nodes": net_input.nodes})
+                offsets, logits = model(**{k: torch.from_numpy(v) for k, v in net_input.arrays.items()})
+            ort_offsets, ort_logits = session.run(None, net_input.arrays)
             offset_diff = max(offset_diff, float(np.abs(ort_offsets - offsets.numpy()).max()))
             logit_diff = max(logit_diff, float(np.abs(ort_logits - logits.numpy()).max()))
-            n_nodes += net_input.nodes.shape[0]
+            n_nodes += net_input.ijk.shape[0]
         if offset_diff > TOLERANCE:
             raise RuntimeError(f"onnxruntime offsets differ from torch by {offset_diff:.3g} voxels "
                                f"(> {TOLERANCE}); not writing {out_path}")

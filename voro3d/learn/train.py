@@ -1,4 +1,5 @@
-"""Two-stage training of :class:`~voro3d.learn.model.VoroNet`, as in the paper.
+"""Two-stage training of a network of :mod:`voro3d.learn.model` (:class:`~voro3d.learn.model.BandNet`
+or :class:`~voro3d.learn.model.VoroNet`, by the config's ``model.arch``), as in the paper.
 
 Stage 1 trains the CNN and MLP1 (offsets) with VoroLoss plus ``reg_weight`` times the largest
 offset norm; stage 2 freezes both and trains MLP2 (occupancy) with binary cross-entropy against
@@ -6,7 +7,8 @@ the true occupancy of every predicted cell: the shape's inside test at
 :func:`voro3d.occupancy.cell_interior_points` of the predicted generators, with the fixed
 fallback generators of :mod:`voro3d.infer` present as at inference.
 
-Both stages see exactly the network input of :func:`voro3d.infer.network_input`. VoroLoss is
+Both stages see exactly the network input that :class:`voro3d.infer.Predictor` builds (the
+model's ``network_input``). VoroLoss is
 measured in voxel units (divided by the squared voxel size), so grids of every size weigh the
 same. A batch is ``batch_size`` shapes, each at a grid size drawn with ``grid_weights`` and
 (stage 1) a random axis permutation and flips; their losses are averaged before one step.
@@ -14,7 +16,9 @@ same. A batch is ``batch_size`` shapes, each at a grid size drawn with ``grid_we
 Run ``python -m voro3d.learn.train models/voromesh_sdf.json`` (or :func:`train_main`). Relative
 paths in the config resolve against the working directory. Everything random derives from
 ``seed`` and the epoch, so a run resumed from its last checkpoint ends where an uninterrupted
-one would.
+one would. Training time is counted in CPU seconds of the process (``time.process_time``), so a
+run paused with SIGSTOP (or resumed in a later session) records only the time it computed;
+nothing in training waits on the wall clock.
 """
 from __future__ import annotations
 
@@ -27,12 +31,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..infer import BAND, NetworkInput, assemble, fixed_generators, network_input, sdf_at
+from ..infer import BAND, NetworkInput, assemble, fixed_generators, sdf_at
 from ..io import atomic_path
 from ..loss import voroloss
 from . import machine_description
 from .data import ShapeSet, build_dataset
-from .model import VoroNet, load_checkpoint, save_checkpoint
+from .model import build_model, load_checkpoint, save_checkpoint
 
 __all__ = ["augment", "cell_labels", "load_config", "shape_loss", "train_main"]
 
@@ -42,8 +46,9 @@ DEFAULTS = {
     "run_dir": "runs/voromesh_sdf",
     "data": {"train_dir": "runs/voromesh_sdf/data/train", "val_dir": "runs/voromesh_sdf/data/val",
              "n_train": 360, "n_val": 16, "train_seed": 7, "val_seed": 1001, "grids": [32, 64],
-             "n_samples": 50_000, "mesh_dir": None, "n_organic": 0},
-    "model": {"width": 16, "coarse_width": 32, "head_width": 64, "truncation": 3.0},
+             "n_samples": 50_000, "mesh_dir": None, "n_organic": 0, "n_thin": 0, "n_cut": 0},
+    # Keyword arguments of the network named by "arch" (voro3d.learn.model.build_model checks them).
+    "model": {"arch": "dense", "width": 16, "coarse_width": 32, "head_width": 64, "truncation": 3.0},
     "near": 1.0,
     "band": BAND,
     "stage1": {"epochs": 20, "batch_size": 2, "lr": 3e-3, "final_lr_fraction": 0.05, "reg_weight": 2e-3,
@@ -61,7 +66,8 @@ def load_config(path) -> dict:
     FileNotFoundError
         No file at ``path``.
     ValueError
-        Unparseable file, or keys that ``DEFAULTS`` does not know (typos would be silently ignored).
+        Unparseable file, keys that ``DEFAULTS`` does not know (typos would be silently ignored), or
+        a model config its network does not take.
     """
     path = Path(path)
     if not path.is_file():
@@ -84,7 +90,15 @@ def load_config(path) -> dict:
     for key, value in given.items():
         if key not in config:
             raise ValueError(f"{path}: unknown config key {key!r}; known: {sorted(config)}")
-        if isinstance(config[key], dict):
+        if key == "model" and isinstance(value, dict):
+            # Each network has its own arguments: merge over the defaults of the same arch only.
+            base = config["model"] if value.get("arch", "dense") == config["model"]["arch"] else {}
+            config["model"] = {**base, **value}
+            try:
+                build_model(config["model"])
+            except ValueError as error:
+                raise ValueError(f"{path}: {error}") from None
+        elif isinstance(config[key], dict):
             unknown = set(value) - set(config[key])
             if unknown:
                 raise ValueError(f"{path}: unknown keys {sorted(unknown)} in {key!r}; known: {sorted(config[key])}")
@@ -108,8 +122,8 @@ def augment(sdf: np.ndarray, points: np.ndarray, rng: np.random.Generator) -> tu
     return sdf, points
 
 
-def _as_torch(net_input: NetworkInput) -> tuple[torch.Tensor, torch.Tensor]:
-    return torch.from_numpy(net_input.sdf_voxels), torch.from_numpy(net_input.nodes)
+def _as_torch(net_input: NetworkInput) -> dict:
+    return {name: torch.from_numpy(array) for name, array in net_input.arrays.items()}
 
 
 def _generators(net_input: NetworkInput, offsets: torch.Tensor) -> torch.Tensor:
@@ -117,13 +131,13 @@ def _generators(net_input: NetworkInput, offsets: torch.Tensor) -> torch.Tensor:
     return torch.from_numpy(net_input.positions.astype(np.float32)) + net_input.step * offsets
 
 
-def shape_loss(model: VoroNet, sdf: np.ndarray, samples: np.ndarray, *, near: float,
+def shape_loss(model: torch.nn.Module, sdf: np.ndarray, samples: np.ndarray, *, near: float,
                reg_weight: float) -> tuple[torch.Tensor, dict]:
     """Stage-1 loss of one shape: VoroLoss in voxel units plus ``reg_weight`` times the largest offset.
 
     Parameters
     ----------
-    model : VoroNet
+    model : BandNet or VoroNet
     sdf : (g, g, g) float32
     samples : (m, 3) float32
         Surface samples in the grid's ``[-1, 1]^3`` frame.
@@ -139,8 +153,8 @@ def shape_loss(model: VoroNet, sdf: np.ndarray, samples: np.ndarray, *, near: fl
     parts : dict
         ``voroloss`` (voxel^2) and ``max_offset`` (voxels) as floats.
     """
-    net_input = network_input(sdf, near=near, margin=model.receptive_radius)
-    features = model.node_features(*_as_torch(net_input))
+    net_input = model.network_input(sdf, near=near)
+    features = model.node_features(**_as_torch(net_input))
     offsets = model.offset_head(features)
     distance = voroloss(torch.from_numpy(samples), _generators(net_input, offsets)) / net_input.step**2
     largest = offsets.norm(dim=1).max()
@@ -197,7 +211,7 @@ class _Validation:
     def _gt(self, i):
         return self.shapes[i]["vertices"], self.shapes[i]["triangles"]
 
-    def run(self, model: VoroNet, *, near: float, band: float, stage: int) -> dict:
+    def run(self, model: torch.nn.Module, *, near: float, band: float, stage: int) -> dict:
         """Validation metrics; stage 1 labels cells by the SDF sign at the generator (MLP2 is untrained)."""
         from ..metrics import evaluate
 
@@ -207,9 +221,9 @@ class _Validation:
             losses, correct, total, chamfers = [], 0, 0, []
             for i, shape in enumerate(self.shapes):
                 sdf = shape[f"sdf_{grid}"]
-                net_input = network_input(sdf, near=near, margin=model.receptive_radius)
+                net_input = model.network_input(sdf, near=near)
                 with torch.no_grad():
-                    offsets, logits = model(*_as_torch(net_input))
+                    offsets, logits = model(**_as_torch(net_input))
                     generators = _generators(net_input, offsets)
                     losses.append(float(voroloss(torch.from_numpy(shape["samples"]), generators)) / net_input.step**2)
                 if i not in self.detail:
@@ -296,7 +310,7 @@ def _stage1_epoch(model, optimizer, scheduler, shapes: ShapeSet, config: dict, e
     return {"train_loss": float(np.mean(totals))}
 
 
-def _occupancy_table(model: VoroNet, shapes: ShapeSet, indices, grids, *, near: float, band: float,
+def _occupancy_table(model: torch.nn.Module, shapes: ShapeSet, indices, grids, *, near: float, band: float,
                      nodes_per_shape: int, seed: int, progress) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Frozen features, offsets and true cell labels of up to ``nodes_per_shape`` nodes per shape and grid."""
     from ..queries import InsideOutside
@@ -309,9 +323,9 @@ def _occupancy_table(model: VoroNet, shapes: ShapeSet, indices, grids, *, near: 
         queries = InsideOutside((shape["vertices"], shape["triangles"]))
         for grid in grids:
             sdf = shape[f"sdf_{grid}"]
-            net_input = network_input(sdf, near=near, margin=model.receptive_radius)
+            net_input = model.network_input(sdf, near=near)
             with torch.no_grad():
-                feature = model.node_features(*_as_torch(net_input))
+                feature = model.node_features(**_as_torch(net_input))
                 offset = model.offset_head(feature)
             generators = _generators(net_input, offset).double().numpy()
             label = cell_labels(queries, net_input, generators, sdf, near=near, band=band)
@@ -350,12 +364,12 @@ def train_main(config_path) -> Path:
     grids = [int(g) for g in data["grids"]]
     train = ShapeSet(build_dataset(data["train_dir"], data["n_train"], grid=grids, seed=data["train_seed"],
                                    n_samples=data["n_samples"], mesh_dir=data["mesh_dir"],
-                                   n_organic=data["n_organic"]))
+                                   n_organic=data["n_organic"], n_thin=data["n_thin"], n_cut=data["n_cut"]))
     validation = _Validation(ShapeSet(build_dataset(data["val_dir"], data["n_val"], grid=grids,
                                                     seed=data["val_seed"], n_samples=data["n_samples"])),
                              grids, config["validation"]["n_detail"], config["validation"]["cd_points"])
 
-    model = VoroNet(**config["model"])
+    model = build_model(config["model"])
     s1, s2 = config["stage1"], config["stage2"]
     steps_per_epoch = -(-len(train) // s1["batch_size"])
     optimizer = torch.optim.Adam(list(model.parameters()), lr=s1["lr"])
@@ -383,11 +397,11 @@ def train_main(config_path) -> Path:
         _plot(history, run_dir / "loss_curve.png", grids)
 
     while stage == 1 and epoch < s1["epochs"]:
-        started = time.perf_counter()
+        started = time.process_time()
         with tqdm(total=len(train), desc=f"stage 1 epoch {epoch + 1}/{s1['epochs']}", unit="shape",
                   leave=False) as progress:
             metrics = _stage1_epoch(model, optimizer, scheduler, train, config, epoch, progress)
-        seconds["stage1"] += time.perf_counter() - started
+        seconds["stage1"] += time.process_time() - started
         metrics.update(validation.run(model, near=config["near"], band=config["band"], stage=1), stage=1, epoch=epoch)
         history.append(metrics)
         tqdm.write(json.dumps(metrics))
@@ -406,15 +420,15 @@ def train_main(config_path) -> Path:
     if stage == 2 and epoch > 0:
         optimizer.load_state_dict(torch.load(last, map_location="cpu", weights_only=False)["optimizer"])
     if epoch < s2["epochs"]:
-        started = time.perf_counter()
+        started = time.process_time()
         indices = np.random.default_rng([config["seed"], 3]).permutation(len(train))[: s2["n_shapes"]]
         with tqdm(total=len(indices), desc="stage 2 labels", unit="shape", leave=False) as progress:
             features, offsets, labels = _occupancy_table(
                 model, train, indices, grids, near=config["near"], band=config["band"],
                 nodes_per_shape=s2["nodes_per_shape"], seed=config["seed"], progress=progress)
-        seconds["stage2"] += time.perf_counter() - started
+        seconds["stage2"] += time.process_time() - started
     while epoch < s2["epochs"]:
-        started = time.perf_counter()
+        started = time.process_time()
         order = torch.from_numpy(np.random.default_rng([config["seed"], 4, epoch]).permutation(labels.shape[0]))
         head.train()
         losses = []
@@ -427,7 +441,7 @@ def train_main(config_path) -> Path:
             loss.backward()
             optimizer.step()
             losses.append(loss.item())
-        seconds["stage2"] += time.perf_counter() - started
+        seconds["stage2"] += time.process_time() - started
         metrics = validation.run(model, near=config["near"], band=config["band"], stage=2)
         metrics.update(train_loss=float(np.mean(losses)), stage=2, epoch=epoch)
         history.append(metrics)
