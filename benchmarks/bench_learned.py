@@ -9,10 +9,11 @@ For every dev mesh (never trained on) whose inside is defined, in its fit frame,
 * Marching Cubes (scikit-image) of the same grid;
 
 each scored by :func:`voro3d.metrics.evaluate` (CD x1e5, F1, NC in the ground truth's NDC
-frame, 100k points) and :func:`voro3d.watertight.check_watertight`. Writes
-``benchmarks/results/learned.{md,json}``.
+frame, 100k points) and :func:`voro3d.watertight.check_watertight`. The VoroMeshes are cleaned
+(``to_open3d()``'s default, as ``voro3d predict`` writes them). Writes
+``benchmarks/results/learned.{md,json}`` (``--out``: another path stem, e.g. for a candidate model).
 
-    python benchmarks/bench_learned.py [--grids 32 64] [--threads N] [--limit N]
+    python benchmarks/bench_learned.py [--grids 32 64] [--threads N] [--limit N] [--model M.onnx] [--out STEM]
 """
 from __future__ import annotations
 
@@ -149,6 +150,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
     parser.add_argument("--limit", type=int, default=None, help="only the first N dev meshes")
     parser.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    parser.add_argument("--out", type=Path, default=RESULTS / "learned",
+                        help="path stem of the .md and .json results (default: benchmarks/results/learned)")
     args = parser.parse_args()
 
     from voro3d.infer import DEFAULT_MODEL, Predictor
@@ -178,9 +181,9 @@ def main() -> None:
         result["summary"][str(grid)] = _summary(grid_rows)
         result["groups"][str(grid)] = {group: _summary(members) for group in GROUPS
                                        if (members := [r for r in grid_rows if r["mesh"].startswith(group)])}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "learned.json").write_text(json.dumps(result, indent=1))
-    (RESULTS / "learned.md").write_text(_markdown(result))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
+    args.out.with_suffix(".md").write_text(_markdown(result))
     print(_markdown(result))
 
 

@@ -155,6 +155,23 @@ def test_training_is_deterministic(tiny_run, tmp_path):
         torch.testing.assert_close(first[name], second[name], rtol=0, atol=0, msg=name)
 
 
+def test_init_starts_a_new_run_from_a_checkpoint(tiny_run, tmp_path):
+    root, path, final = tiny_run
+    config = json.loads(path.read_text())
+    config.update(run_dir=str(tmp_path / "next"), init=str(final))
+    config["stage1"]["epochs"] = 0
+    config["stage2"]["epochs"] = 0
+    following = tmp_path / "next.json"
+    following.write_text(json.dumps(config))
+    start, again = load_checkpoint(final)[0].state_dict(), load_checkpoint(train_main(following))[0].state_dict()
+    for name in start:
+        torch.testing.assert_close(start[name], again[name], rtol=0, atol=0, msg=name)
+    config["model"]["head_width"] = 8
+    following.write_text(json.dumps(config))
+    with pytest.raises(ValueError, match="init checkpoint"):
+        train_main(following)
+
+
 def test_export_matches_torch(tiny_run, tmp_path):
     _, _, final = tiny_run
     report = export_onnx(final, tmp_path / "tiny.onnx")

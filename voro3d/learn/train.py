@@ -44,6 +44,8 @@ DEFAULTS = {
     "seed": 0,
     "threads": 1,
     "run_dir": "runs/voromesh_sdf",
+    # A checkpoint whose weights start the run (a new run continuing an earlier one), or None.
+    "init": None,
     "data": {"train_dir": "runs/voromesh_sdf/data/train", "val_dir": "runs/voromesh_sdf/data/val",
              "n_train": 360, "n_val": 16, "train_seed": 7, "val_seed": 1001, "grids": [32, 64],
              "n_samples": 50_000, "mesh_dir": None, "n_organic": 0, "n_thin": 0, "n_cut": 0},
@@ -340,8 +342,10 @@ def _occupancy_table(model: torch.nn.Module, shapes: ShapeSet, indices, grids, *
 def train_main(config_path) -> Path:
     """Train a model from a config file, resuming from ``run_dir/last.pt`` when it exists.
 
-    Writes to ``run_dir``: ``last.pt`` (after every epoch), ``final.pt`` (model, config,
-    history, training record), ``history.json`` and ``loss_curve.png``.
+    A new run starts from random weights, or from those of the checkpoint ``init`` (an earlier
+    run's ``final.pt``: a later session continues training with a new schedule). Writes to
+    ``run_dir``: ``last.pt`` (after every epoch), ``final.pt`` (model, config, history, training
+    record), ``history.json`` and ``loss_curve.png``.
 
     Parameters
     ----------
@@ -352,6 +356,11 @@ def train_main(config_path) -> Path:
     -------
     pathlib.Path
         ``run_dir/final.pt``.
+
+    Raises
+    ------
+    ValueError
+        A bad config, or an ``init`` checkpoint of another network than the configured one.
     """
     from tqdm import tqdm
 
@@ -370,6 +379,12 @@ def train_main(config_path) -> Path:
                              grids, config["validation"]["n_detail"], config["validation"]["cd_points"])
 
     model = build_model(config["model"])
+    if config["init"] is not None:
+        start, _ = load_checkpoint(config["init"])
+        if start.config != model.config:
+            raise ValueError(f"init checkpoint {config['init']} holds a {start.config} model, "
+                             f"not the configured {model.config}")
+        model = start
     s1, s2 = config["stage1"], config["stage2"]
     steps_per_epoch = -(-len(train) // s1["batch_size"])
     optimizer = torch.optim.Adam(list(model.parameters()), lr=s1["lr"])
