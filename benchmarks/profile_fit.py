@@ -16,6 +16,10 @@ Three tables:
 * ``budget`` (``--budget-study``): the fit (compiled kernel) with fewer surface samples per grid
   face and/or a smaller batch fraction than the official 150 and 0.2, which cut the work per step
   and per kNN search in proportion: seconds, final loss, CD / F1 / NC, watertightness.
+* ``schedule`` (``--schedule-study``): the fit (compiled kernel) with other numbers of kNN candidates
+  per sample and refresh thresholds (``k:voxels`` pairs; the threshold capped at
+  ``fitting.MAX_REFRESH_DISTANCE`` as in every fit), for ``--schedule-meshes`` (``dev``: all dev
+  meshes): seconds, searches, CD / F1 / NC, and their means per grid and pair.
 * ``refresh`` (``--refresh-study``): the fit redone with the candidates searched again every step
   (``REFRESH_VOXELS = 0``, the exact loss) and at other thresholds; the final loss is recomputed
   exactly (fresh kNN search) so the policies are compared on equal terms.
@@ -181,6 +185,48 @@ def budget_rows(name, mesh, grid, steps, budgets):
     return rows
 
 
+def schedule_rows(name, mesh, grid, steps, schedules):
+    rows = []
+    default = fit_module.REFRESH_VOXELS
+    try:
+        for k, refresh in schedules:
+            fit_module.REFRESH_VOXELS = refresh
+            load = os.getloadavg()[0]
+            cpu = time.process_time()
+            voromesh, info = fit_module.fit(mesh, grid, steps=steps, k=k, allow_open=True)  # thingi32_96481 is open
+            cpu = time.process_time() - cpu
+            surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+            metrics = evaluate(surface, mesh)
+            rows.append({"mesh": name, "grid": grid, "k": k, "refresh_voxels": refresh,
+                         "fit_total_s": info.total_seconds, "fit_cpu_s": cpu, "searches": info.candidate_searches,
+                         "final_loss": info.final_loss,
+                         "cd_x1e5": metrics["chamfer_x1e5"], "f1": metrics["f1"], "nc": metrics["nc"],
+                         "load_before": load})
+            print(rows[-1], flush=True)
+    finally:
+        fit_module.REFRESH_VOXELS = default
+    return rows
+
+
+def schedule_means(rows):
+    """Means per grid and (k, refresh) pair, and their change against the first pair of the grid."""
+    means = []
+    for grid in dict.fromkeys(row["grid"] for row in rows):
+        pairs = dict.fromkeys((row["k"], row["refresh_voxels"]) for row in rows if row["grid"] == grid)
+        first = None
+        for k, refresh in pairs:
+            chosen = [row for row in rows if (row["grid"], row["k"], row["refresh_voxels"]) == (grid, k, refresh)]
+            mean = {key: float(np.mean([row[key] for row in chosen]))
+                    for key in ("fit_total_s", "fit_cpu_s", "searches", "cd_x1e5", "f1", "nc")}
+            first = first or mean
+            means.append({"grid": grid, "k": k, "refresh_voxels": refresh, "meshes": len(chosen), **mean,
+                          "max_fit_total_s": max(row["fit_total_s"] for row in chosen),
+                          "cd_change_%": 100 * (mean["cd_x1e5"] / first["cd_x1e5"] - 1),
+                          "f1_change_%": 100 * (mean["f1"] / first["f1"] - 1),
+                          "nc_change_%": 100 * (mean["nc"] / first["nc"] - 1)})
+    return means
+
+
 def refresh_rows(name, mesh, grid, steps, thresholds):
     vertices, triangles = mesh_arrays(mesh)
     frame = fit_frame((vertices, triangles))
@@ -229,6 +275,11 @@ def main():
     parser.add_argument("--budget-grids", nargs="+", type=int, default=[32, 64])
     parser.add_argument("--budgets", nargs="+", default=["150:0.2", "100:0.2", "75:0.2", "150:0.1"],
                         help="samples_per_face:batch_fraction pairs")
+    parser.add_argument("--schedule-study", action="store_true", help="kNN candidates and refresh threshold")
+    parser.add_argument("--schedule-grids", nargs="+", type=int, default=[32, 64])
+    parser.add_argument("--schedules", nargs="+", default=["11:1.0", "8:1.5"], help="k:refresh_voxels pairs")
+    parser.add_argument("--schedule-meshes", nargs="+", default=None,
+                        help="meshes of the schedule study (default --meshes; 'dev' for all dev meshes)")
     parser.add_argument("--refresh-grids", nargs="+", type=int, default=[32, 64])
     parser.add_argument("--refresh-thresholds", nargs="+", type=float, default=[0.0, 0.5, 1.0, 2.0, float("inf")])
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "profile_fit")
@@ -236,7 +287,8 @@ def main():
 
     result = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "torch": torch.__version__,
                           "load_average_at_start": os.getloadavg()},
-              "phases": [], "steps": [], "kernel": [], "budget": [], "refresh": []}
+              "phases": [], "steps": [], "kernel": [], "budget": [], "schedule": [], "schedule_means": [],
+              "refresh": []}
     meshes = {name: load(name) for name in dict.fromkeys(args.meshes + [args.steps_mesh])}
     for grid in args.grids:
         for name in args.meshes:
@@ -253,6 +305,15 @@ def main():
         for grid in args.budget_grids:
             for name in args.meshes:
                 result["budget"] += budget_rows(name, meshes[name], grid, args.steps, budgets)
+    if args.schedule_study:
+        names = args.schedule_meshes or args.meshes
+        if names == ["dev"]:
+            names = sorted(path.name for path in DEV.iterdir() if path.suffix in (".obj", ".off", ".stl", ".ply"))
+        schedules = [(int(text.split(":")[0]), float(text.split(":")[1])) for text in args.schedules]
+        for grid in args.schedule_grids:
+            for name in names:
+                result["schedule"] += schedule_rows(name, meshes.get(name) or load(name), grid, args.steps, schedules)
+        result["schedule_means"] = schedule_means(result["schedule"])
     if args.refresh_study:
         for grid in args.refresh_grids:
             for name in args.meshes:
@@ -266,6 +327,8 @@ def main():
                       (("phases", "Phases (wall-clock seconds)"), ("steps", "Loop parts (wall-clock seconds)"),
                        ("kernel", "Torch step vs compiled kernel (interleaved)"),
                        ("budget", "Samples per face and batch fraction vs quality"),
+                       ("schedule_means", "kNN candidates and refresh threshold: means"),
+                       ("schedule", "kNN candidates and refresh threshold, per mesh"),
                        ("refresh", "Candidate-search threshold vs quality")))
     (args.out / "profile_fit.md").write_text(text)
     print(text)

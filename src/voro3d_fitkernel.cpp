@@ -339,11 +339,11 @@ CellGrid bucket(const std::vector<double>& sites, double cell) {
 
 template <typename Real>
 py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::array& generators_in, std::int64_t k,
-                                       double cell, int threads) {
+                                       double cell, int threads, py::array_t<std::int32_t> result,
+                                       const std::int64_t* rows) {
   auto samples = py::reinterpret_borrow<py::array_t<Real>>(samples_in).template unchecked<2>();
   const std::int64_t m = samples.shape(0);
   const std::vector<double> sites = packed_sites(py::reinterpret_borrow<py::array_t<Real>>(generators_in));
-  py::array_t<std::int32_t> result({m, k});
   std::int32_t* out = result.mutable_data();
   std::vector<std::int64_t> bad(std::max<std::int64_t>(1, (m + kBlock - 1) / kBlock), -1);
   {
@@ -445,7 +445,8 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
           if (ring_reach == std::numeric_limits<double>::infinity()) break;  // the whole grid searched
           if (static_cast<std::int64_t>(best.size()) == k && best.back().first <= ring_reach * ring_reach) break;
         }
-        for (std::int64_t r = 0; r < k; ++r) out[s * k + r] = static_cast<std::int32_t>(best[r].second);
+        const std::int64_t row = rows == nullptr ? s : rows[s];
+        for (std::int64_t r = 0; r < k; ++r) out[row * k + r] = static_cast<std::int32_t>(best[r].second);
       }
     };
     parallel_for(threads, (m + kBlock - 1) / kBlock, search_block);
@@ -457,11 +458,13 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
 }
 
 py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const py::object& generators_in,
-                                             std::int64_t k, double cell, int threads) {
+                                             std::int64_t k, double cell, int threads, const py::object& out_in,
+                                             const py::object& rows_in) {
   py::array samples = as_array(samples_in, "samples");
   py::array generators = as_array(generators_in, "generators");
   check_shape(samples, "samples", "(m, 3)", 3);
   check_shape(generators, "generators", "(n, 3)", 3);
+  const std::int64_t m = samples.shape(0);
   const std::int64_t n = generators.shape(0);
   if (k < 1 || k > n || k > std::numeric_limits<std::int32_t>::max()) {
     throw py::value_error("k must be in [1, " + std::to_string(n) + "] (the number of generators), got " +
@@ -471,8 +474,37 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
   if (!(std::isfinite(cell) && cell > 0)) throw py::value_error("cell must be a finite number > 0, got " + std::to_string(cell));
   if (threads < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(threads));
   check_real_pair(samples, generators);
-  return py::isinstance<py::array_t<float>>(samples) ? nearest_impl<float>(samples, generators, k, cell, threads)
-                                                     : nearest_impl<double>(samples, generators, k, cell, threads);
+  // The answer goes to rows[s] of out when given (the fit's candidates, in the samples' own order,
+  // while the search runs in spatial order): no gather of the whole answer afterwards.
+  if (out_in.is_none() != rows_in.is_none()) throw py::value_error("out and rows must be given together");
+  py::array_t<std::int32_t> result;
+  std::vector<std::int64_t> rows;
+  if (out_in.is_none()) {
+    result = py::array_t<std::int32_t>({m, k});
+  } else {
+    py::array out = as_array(out_in, "out");
+    if (!py::isinstance<py::array_t<std::int32_t>>(out)) throw py::type_error("out must be int32, got dtype " + dtype_name(out));
+    if (out.ndim() != 2 || out.shape(1) != k) {
+      throw py::value_error("out must have shape (rows, " + std::to_string(k) + "), got " + shape_of(out));
+    }
+    if (!out.writeable() || !(out.flags() & py::array::c_style)) throw py::value_error("out must be writeable and C-contiguous");
+    result = py::reinterpret_borrow<py::array_t<std::int32_t>>(out);
+    py::array row_array = as_array(rows_in, "rows");
+    if (row_array.ndim() != 1 || row_array.shape(0) != m) {
+      throw py::value_error("rows must have shape (" + std::to_string(m) + ",) like samples, got " + shape_of(row_array));
+    }
+    auto given = py::array_t<std::int64_t, py::array::forcecast>(row_array);
+    rows.assign(given.data(), given.data() + m);
+    for (std::int64_t row : rows) {
+      if (row < 0 || row >= out.shape(0)) {
+        throw py::value_error("rows holds " + std::to_string(row) + ", outside [0, " + std::to_string(out.shape(0)) + ")");
+      }
+    }
+  }
+  const std::int64_t* row_data = rows.empty() ? nullptr : rows.data();
+  return py::isinstance<py::array_t<float>>(samples)
+             ? nearest_impl<float>(samples, generators, k, cell, threads, result, row_data)
+             : nearest_impl<double>(samples, generators, k, cell, threads, result, row_data);
 }
 
 }  // namespace
@@ -513,7 +545,8 @@ TypeError
     Not arrays, or wrong dtypes.
 )doc");
   module.def("nearest_generators", &nearest_generators, py::arg("samples"), py::arg("generators"), py::arg("k"),
-             py::kw_only(), py::arg("cell"), py::arg("threads") = 1,
+             py::kw_only(), py::arg("cell"), py::arg("threads") = 1, py::arg("out") = py::none(),
+             py::arg("rows") = py::none(),
              R"doc(Indices of the k generators nearest to each sample, nearest first (exact, ties to the lower index).
 
 The generators are bucketed in a grid of cubic cells of side ``cell`` (coarsened if that would
@@ -530,15 +563,20 @@ cell : float
     Side of the bucket cells, > 0; only the speed depends on it.
 threads : int
     Threads to use, >= 1.
+out : (r, k) int32 writeable C-contiguous array, optional
+rows : (m,) int array, optional
+    Given together: the answer for sample ``s`` is written to ``out[rows[s]]`` (other rows are
+    left as they are) and ``out`` is returned.
 
 Returns
 -------
-(m, k) int32 array
+(m, k) int32 array, or ``out``
 
 Raises
 ------
 ValueError
-    Bad shapes, NaN or inf, k outside [1, n], cell <= 0, threads < 1.
+    Bad shapes, NaN or inf, k outside [1, n], cell <= 0, threads < 1, rows outside ``out``,
+    ``out`` without ``rows`` or the other way round.
 TypeError
     Not arrays, or wrong dtypes.
 )doc");

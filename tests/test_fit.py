@@ -104,6 +104,7 @@ def test_candidates_are_searched_again_after_moves(sphere, monkeypatch):
     monkeypatch.setattr(fit_module, "REFRESH_VOXELS", 0.1)
     _, often = fit(sphere, 12, **TINY)
     monkeypatch.setattr(fit_module, "REFRESH_VOXELS", np.inf)
+    monkeypatch.setattr(fit_module, "MAX_REFRESH_DISTANCE", np.inf)
     _, never = fit(sphere, 12, **TINY)
     assert often.candidate_searches > never.candidate_searches == 1
 

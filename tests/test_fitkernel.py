@@ -11,7 +11,6 @@ from scipy.spatial import cKDTree
 
 from voro3d import _cpufit, _fitkernel
 from voro3d import fitting as fit_module
-from voro3d import loss as loss_module
 from voro3d.extract import extract_mesh
 from voro3d.generators import initial_generators
 from voro3d.loss import knn_candidates, voroloss
@@ -178,6 +177,33 @@ def test_nearest_generators_ties_go_to_the_lower_index():
     assert found.tolist() == [[0, 1, 2, 3]]
 
 
+def test_nearest_generators_write_the_rows_asked_for():
+    rng = np.random.default_rng(4)
+    samples, generators = rng.uniform(-1, 1, (300, 3)), rng.uniform(-1, 1, (50, 3))
+    rows = rng.permutation(400)[:300]
+    out = np.full((400, 6), -1, np.int32)
+    returned = _fitkernel.nearest_generators(samples, generators, 6, cell=0.2, threads=2, out=out, rows=rows)
+    assert returned is out
+    np.testing.assert_array_equal(out[rows], _fitkernel.nearest_generators(samples, generators, 6, cell=0.2))
+    untouched = np.setdiff1d(np.arange(400), rows)
+    assert (out[untouched] == -1).all()
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(out=np.zeros((20, 4), np.int32)), ValueError, "out and rows must be given together"),
+    (dict(rows=np.arange(20)), ValueError, "out and rows must be given together"),
+    (dict(out=np.zeros((20, 4), np.int64), rows=np.arange(20)), TypeError, "out must be int32, got dtype int64"),
+    (dict(out=np.zeros((20, 3), np.int32), rows=np.arange(20)), ValueError, r"out must have shape \(rows, 4\), got \(20, 3\)"),
+    (dict(out=np.zeros((20, 4), np.int32), rows=np.arange(19)), ValueError, r"rows must have shape \(20,\)"),
+    (dict(out=np.zeros((20, 4), np.int32), rows=np.arange(1, 21)), ValueError, r"rows holds 20, outside \[0, 20\)"),
+    (dict(out=np.zeros((20, 8), np.int32)[:, ::2], rows=np.arange(20)), ValueError, "out must be writeable and C-contiguous"),
+])
+def test_nearest_generators_bad_out(kwargs, error, match):
+    arguments = dict(samples=SAMPLES, generators=SITES, k=4, cell=0.1, threads=1) | kwargs
+    with pytest.raises(error, match=match):
+        _fitkernel.nearest_generators(**arguments)
+
+
 @pytest.mark.parametrize("kwargs, error, match", [
     (dict(k=0), ValueError, r"k must be in \[1, 10\] \(the number of generators\), got 0"),
     (dict(k=11), ValueError, r"k must be in \[1, 10\] \(the number of generators\), got 11"),
@@ -244,10 +270,6 @@ def test_cpu_fit_imports_no_torch():
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["True", "False"]
-
-
-def test_default_k_is_the_loss_one():
-    assert fit_module.DEFAULT_K == loss_module.DEFAULT_K
 
 
 def test_numpy_adam_matches_torch_optim():

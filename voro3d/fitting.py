@@ -26,22 +26,29 @@ __all__ = ["FitInfo", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples"
 SAMPLES_PER_FACE = 150
 
 # The kNN candidates of every sample are searched once and searched again only after some
-# generator has moved this many voxels since the last search (4-5 searches at grid 32, 5-9 at 64,
-# 10 at 128). Between searches the nearest generator and the nearest bisector are re-ranked among
-# the candidates at every step, so the loss stays exact while the candidates still hold them.
+# generator has moved this many voxels since the last search (2-3 searches at grid 32, 3-5 at 64).
+# Between searches the nearest generator and the nearest bisector are re-ranked among the
+# candidates at every step, so the loss stays exact while the candidates still hold them.
 # Against a search at every step (benchmarks/profile_fit.py --refresh-study, bunny, fandisk and
-# thingi32 44234 at 32, bunny at 64) the final loss is within 3% and CD and F1 within 1%; with
-# no second search the final loss is 1.4-6.4 times higher and CD 3-8% worse.
-REFRESH_VOXELS = 1.0
+# thingi32 44234 at 32, bunny at 64) a threshold of 1 voxel left the final loss within 3% and CD and
+# F1 within 1%; with no second search the final loss is 1.4-6.4 times higher and CD 3-8% worse.
+# 1.5 voxels with DEFAULT_K candidates, but at most MAX_REFRESH_DISTANCE in the fit frame (1.24
+# voxels at 32^3), searches half as often at the same mean CD, F1 and NC over the dev meshes at 32
+# and 64 (profile_fit.py --schedule-study). A coarse grid needs the cap: 1.5 voxels at 32^3 left 2
+# searches in all, and thin parts (the cow's horns) fitted worse, mean CD +8.5%.
+REFRESH_VOXELS = 1.5
+MAX_REFRESH_DISTANCE = 0.08
 
 # On CPU the fit runs voro3d._cpufit.KernelLoop (the compiled kernel, no torch); False runs the
 # torch loop there too, the reference that CUDA runs, so that benchmarks/profile_fit.py and the
 # tests can compare the two.
 _CPU_KERNEL = True
 
-# voro3d.loss.DEFAULT_K (the official code's nearest generator and 10 more), repeated because
-# voro3d.loss imports torch, which a CPU fit does without; tests/test_fitkernel.py checks they agree.
-DEFAULT_K = 11
+# kNN candidates per sample: the nearest generator and 7 more. The official code (and
+# voro3d.loss.DEFAULT_K) takes 10 more; at the fit's refresh threshold the nearest bisector is
+# among the first 8 as often (profile_fit.py --schedule-study: the same mean CD, F1 and NC over
+# the dev meshes at 32 and 64), and the step and each search cost a quarter less.
+DEFAULT_K = 8
 
 
 @dataclass(frozen=True)
@@ -111,7 +118,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     batch_fraction : float
         Share of the samples used per step, in ``(0, 1]`` (official: 0.2).
     k : int
-        kNN candidates per sample, ``>= 2`` (see :data:`voro3d.loss.DEFAULT_K`).
+        kNN candidates per sample, ``>= 2`` (default :data:`DEFAULT_K`).
     n_samples : int, optional
         Surface samples; default ``150 * grid**2`` (official).
     seed : int
@@ -208,7 +215,8 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
 
     generators = initial_generators(samples, grid)
     schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
-                    refresh_distance=REFRESH_VOXELS * 2.0 / (grid - 1), progress=progress)
+                    refresh_distance=min(REFRESH_VOXELS * 2.0 / (grid - 1), MAX_REFRESH_DISTANCE),
+                    progress=progress)
     if device == "cpu" and _CPU_KERNEL:
         loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=cpu_threads())
         initialised = time.perf_counter()
