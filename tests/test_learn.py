@@ -5,10 +5,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from voro3d.infer import NEAR, Predictor, band_input, network_input, sdf_at  # noqa: E402
+from voro3d.infer import NEAR, Predictor, sdf_at  # noqa: E402
 from voro3d.learn.data import ShapeSet, build_dataset, cad_shape, organic_shape, thin_shape  # noqa: E402
 from voro3d.learn.export import TOLERANCE, check_grids, export_onnx  # noqa: E402
-from voro3d.learn.model import BandNet, VoroNet, build_model, load_checkpoint  # noqa: E402
+from voro3d.learn.model import BandNet, build_model, load_checkpoint  # noqa: E402
 from voro3d.learn.train import augment, load_config, shape_loss, train_main  # noqa: E402
 from voro3d.queries import InsideOutside  # noqa: E402
 from voro3d.sampling import grid_nodes  # noqa: E402
@@ -109,16 +109,14 @@ def test_dataset_arrays_and_cache_spec(tiny_run):
         build_dataset(root / "train", 3, grid=GRID, seed=0, n_samples=4000)
 
 
-# The deeper band network starts slower: 25 steps bring it to 0.85 of its first loss, 50 to 0.50.
-@pytest.mark.parametrize("arch, steps", [("band", 50), ("dense", 25)])
-def test_loss_decreases_on_one_shape(tiny_run, arch, steps):
+def test_loss_decreases_on_one_shape(tiny_run):
     root, _, _ = tiny_run
     shape = ShapeSet([root / "train" / "shape_00000.npz"])[0]
     torch.manual_seed(0)
-    model = build_model({"arch": arch})
+    model = BandNet()
     optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
     losses = []
-    for _ in range(steps):
+    for _ in range(50):  # 25 steps bring the loss to 0.85 of its first value, 50 to 0.50
         optimizer.zero_grad()
         loss, _ = shape_loss(model, shape[f"sdf_{GRID}"], shape["samples"], near=NEAR, reg_weight=2e-3)
         loss.backward()
@@ -181,22 +179,6 @@ def test_export_matches_torch(tiny_run, tmp_path):
     assert predictor.near == NEAR
     voro = predictor.predict(check_grids()[1])
     assert voro.occupancy.any() and not voro.occupancy.all()
-
-
-def test_crop_leaves_node_outputs_unchanged():
-    torch.manual_seed(1)
-    model = VoroNet().eval()
-    g = 40
-    sdf = (np.linalg.norm(grid_nodes(g) - 0.2, axis=1) - 0.35).reshape(g, g, g).astype(np.float32)
-    cropped = model.network_input(sdf, near=NEAR)
-    whole = network_input(sdf, near=NEAR, margin=sdf.shape[0])
-    assert cropped.arrays["sdf_voxels"].size < whole.arrays["sdf_voxels"].size
-    np.testing.assert_array_equal(cropped.ijk, whole.ijk)
-    with torch.no_grad():
-        a = model(**{k: torch.from_numpy(v) for k, v in cropped.arrays.items()})
-        b = model(**{k: torch.from_numpy(v) for k, v in whole.arrays.items()})
-    for x, y in zip(a, b):
-        torch.testing.assert_close(x, y, rtol=0, atol=1e-5)
 
 
 def test_augment_moves_grid_and_points_alike():

@@ -3,14 +3,12 @@
 The pipeline of the paper's §3.2, all numpy except one ONNX call:
 
 1. Nodes of the grid with ``|sdf| < near`` voxels (``near`` stored in the model, 1 for the
-   shipped one) become generators. What the network reads around them depends on the model
-   (told apart by its ONNX input names): the dense network (``voro3d.learn.model.VoroNet``, the
-   shipped one) reads the grid cropped to their bounding box plus its receptive radius, which
-   leaves their features unchanged (:func:`network_input`); the band network
-   (``voro3d.learn.model.BandNet``) reads the nodes with ``|sdf| < context`` voxels and the
-   neighbour, child and parent indices of its sparse convolutions (:func:`band_input`).
-2. The network (exported by ``voro3d.learn.export``) returns per generator node an offset in
-   voxel units (generator = node + offset * voxel size) and an occupancy logit.
+   shipped one) become generators. The network (``voro3d.learn.model.BandNet``, exported by
+   ``voro3d.learn.export``) reads the wider band of nodes with ``|sdf| < context`` voxels (3 for
+   the shipped one) and the neighbour, child and parent indices of its sparse convolutions
+   (:func:`band_input`).
+2. It returns per generator node an offset in voxel units (generator = node + offset * voxel
+   size) and an occupancy logit.
 3. Fallbacks (``fallback=True``): nodes with ``near <= |sdf| < band`` voxels join as fixed
    generators labelled by the SDF sign, so every predicted cell stays within a voxel or two of
    the surface; predicted generators that ended up more than ``far`` voxels from the surface
@@ -18,7 +16,7 @@ The pipeline of the paper's §3.2, all numpy except one ONNX call:
    a large artifact.
 
 The ONNX graph takes the node indices as inputs rather than computing the mask itself, so the
-node set (and the crop or the band) stays visible and testable here, and training (``voro3d.learn``)
+node set (and the band) stays visible and testable here, and training (``voro3d.learn``)
 builds exactly the same input with the same functions.
 """
 from __future__ import annotations
@@ -33,9 +31,8 @@ import numpy as np
 from ._validate import as_sdf_grid
 from .extract import VoroMesh
 
-__all__ = ["BAND", "BAND_INPUTS", "CONTEXT", "DEFAULT_MODEL", "DENSE_INPUTS", "NEAR", "OUTPUT_NAMES", "NetworkInput",
-           "Predictor", "assemble", "band_input", "check_sdf", "fixed_generators", "network_input", "predict",
-           "predict_from_mesh", "sdf_at"]
+__all__ = ["BAND", "BAND_INPUTS", "CONTEXT", "DEFAULT_MODEL", "NEAR", "OUTPUT_NAMES", "NetworkInput", "Predictor",
+           "assemble", "band_input", "check_sdf", "fixed_generators", "predict", "predict_from_mesh", "sdf_at"]
 
 # The shipped network is package data (its card, config and loss curve are in the repository's
 # models/). voro3d has a compiled extension, so it is never imported from a zip archive and
@@ -52,13 +49,12 @@ BAND = 2.0
 # Predicted generators this many voxels from the surface take the SDF sign (the official code's
 # mask_scale of 2 voxels).
 FAR = 2.0
-# The inputs of the two networks of voro3d.learn.model: the dense one (VoroNet) reads the cropped
-# grid, the band one (BandNet) the band's nodes and their lattice structure (band_input).
-DENSE_INPUTS = ("sdf_voxels", "nodes")
+# The inputs of the network (voro3d.learn.model.BandNet): the band's nodes and their lattice
+# structure (band_input).
 BAND_INPUTS = ("band_sdf", "neighbours0", "neighbours1", "neighbours2", "children1", "children2", "up1", "up2",
                "targets")
-# Band of a band model without metadata: receptive context around the generator nodes, in voxels.
-CONTEXT = 4.0
+# Band the network reads, in voxels, when a model carries no metadata (the shipped one's).
+CONTEXT = 3.0
 OUTPUT_NAMES = ("offsets", "logits")
 
 
@@ -69,8 +65,8 @@ class NetworkInput:
     Attributes
     ----------
     arrays : dict of str to numpy.ndarray
-        The model's inputs by name (:data:`DENSE_INPUTS` from :func:`network_input` or
-        :data:`BAND_INPUTS` from :func:`band_input`), ready for onnxruntime or ``torch.from_numpy``.
+        The model's inputs by name (:data:`BAND_INPUTS`, from :func:`band_input`), ready for
+        onnxruntime or ``torch.from_numpy``.
     ijk : (n, 3) int64
         Indices of the generator nodes in the full grid, in the order of the network's outputs.
     step : float
@@ -108,41 +104,6 @@ def _near_nodes(sdf: np.ndarray, near: float) -> tuple[np.ndarray, np.ndarray, f
         raise ValueError(f"sdf has no node within {near:.3g} voxels of the surface; it must be a signed "
                          "distance in the units of the [-1, 1]^3 grid")
     return voxels, ijk.astype(np.int64), step
-
-
-def network_input(sdf: np.ndarray, *, near: float, margin: int) -> NetworkInput:
-    """Input of the dense network: nodes with ``|sdf| < near`` voxels and the SDF crop around them.
-
-    Parameters
-    ----------
-    sdf : (g, g, g) float32
-        From :func:`check_sdf`.
-    near : float
-        Threshold in voxels.
-    margin : int
-        Nodes kept around the selected ones: the network's receptive radius, so that their
-        features equal those computed on the whole grid. The crop starts at even indices (the
-        network halves the resolution once) and an odd-sized crop gets one repeated layer.
-
-    Returns
-    -------
-    NetworkInput
-        ``arrays``: ``sdf_voxels (1, 1, d, h, w)`` float32, the crop divided by the voxel size
-        (``d, h, w`` even), and ``nodes (n, 3)`` int64, the generator nodes' indices in the crop.
-
-    Raises
-    ------
-    ValueError
-        No node lies within ``near`` voxels of the surface (not a distance field in grid units).
-    """
-    voxels, ijk, step = _near_nodes(sdf, near)
-    g = sdf.shape[0]
-    low = np.maximum(ijk.min(axis=0) - margin, 0)
-    low -= low % 2
-    high = np.minimum(ijk.max(axis=0) + margin + 1, g)
-    crop = voxels[low[0]:high[0], low[1]:high[1], low[2]:high[2]]
-    crop = np.pad(crop, [(0, int(n % 2)) for n in crop.shape], mode="edge")
-    return NetworkInput({"sdf_voxels": np.ascontiguousarray(crop[None, None]), "nodes": ijk - low}, ijk, step)
 
 
 # The 27 taps of a 3x3x3 neighbourhood in C order (a dense convolution's weight order).
@@ -289,8 +250,8 @@ class Predictor:
     FileNotFoundError
         No file at ``model``.
     ValueError
-        The file is not a loadable ONNX model with inputs :data:`DENSE_INPUTS` or
-        :data:`BAND_INPUTS` and outputs ``offsets, logits``.
+        The file is not a loadable ONNX model with inputs :data:`BAND_INPUTS` and outputs
+        ``offsets, logits``.
     """
 
     def __init__(self, model=None, *, threads: int | None = None):
@@ -308,25 +269,20 @@ class Predictor:
             raise ValueError(f"{path} is not a loadable ONNX model: {error}") from error
         inputs = tuple(i.name for i in self.session.get_inputs())
         outputs = tuple(o.name for o in self.session.get_outputs())
-        if inputs not in (DENSE_INPUTS, BAND_INPUTS) or outputs != OUTPUT_NAMES:
-            raise ValueError(f"{path} must take inputs {DENSE_INPUTS} or {BAND_INPUTS} and give outputs "
-                             f"{OUTPUT_NAMES}, got {inputs} -> {outputs}")
+        if inputs != BAND_INPUTS or outputs != OUTPUT_NAMES:
+            raise ValueError(f"{path} must take inputs {BAND_INPUTS} and give outputs {OUTPUT_NAMES}, "
+                             f"got {inputs} -> {outputs}")
         self.path = path
         self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
         self.near = float(self.metadata.get("near", NEAR))
-        if inputs == BAND_INPUTS:
-            context = float(self.metadata.get("context", CONTEXT))
-            self.network_input = functools.partial(band_input, near=self.near, context=context)
-        else:
-            margin = int(self.metadata.get("receptive_radius", 10))
-            self.network_input = functools.partial(network_input, near=self.near, margin=margin)
+        self.context = float(self.metadata.get("context", CONTEXT))
 
     def run(self, sdf) -> tuple[NetworkInput, np.ndarray, np.ndarray]:
         """The network step alone: validated input, ``(n, 3)`` offsets in voxels, ``(n,)`` logits."""
         return self._run(check_sdf(sdf))
 
     def _run(self, sdf: np.ndarray):
-        net_input = self.network_input(sdf)
+        net_input = band_input(sdf, near=self.near, context=self.context)
         offsets, logits = self.session.run(None, net_input.arrays)
         return net_input, offsets, logits
 

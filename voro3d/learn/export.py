@@ -3,17 +3,13 @@
 The graph (opset 17, torch's TorchScript-based exporter: the dynamo exporter needs onnxscript,
 which voro3d does not depend on) has
 
-* the inputs of the network's ``network_input``, every axis that depends on the grid dynamic:
-  for :class:`~voro3d.learn.model.BandNet` the arrays of :func:`voro3d.infer.band_input`
-  (:data:`voro3d.infer.BAND_INPUTS`; the graph is gathers, matmuls, adds and ReLUs), for
-  :class:`~voro3d.learn.model.VoroNet` ``sdf_voxels (1, 1, d, h, w)`` float32 and ``nodes (n, 3)``
-  int64 (:data:`voro3d.infer.DENSE_INPUTS`);
+* inputs: the arrays of :func:`voro3d.infer.band_input` (:data:`voro3d.infer.BAND_INPUTS`),
+  every row count dynamic; the graph is gathers, matmuls, adds, pads and ReLUs;
 * outputs ``offsets`` ``(n, 3)`` float32 in voxel units and ``logits`` ``(n,)`` float32, one row
   per generator node.
 
 Metadata carries what :class:`voro3d.infer.Predictor` needs to build the input the model was
-trained on (``near``; ``context`` of a band model, ``receptive_radius`` of a dense one) and a
-record of its training.
+trained on (``near``, ``context``) and a record of its training.
 """
 from __future__ import annotations
 
@@ -77,12 +73,12 @@ def check_grids() -> list[np.ndarray]:
     return grids
 
 
-def export_model(model: torch.nn.Module, out_path, *, near: float, metadata: dict | None = None) -> ExportReport:
+def export_model(model: BandNet, out_path, *, near: float, metadata: dict | None = None) -> ExportReport:
     """Export ``model`` to ``out_path`` and compare onnxruntime with torch on :func:`check_grids`.
 
     Parameters
     ----------
-    model : BandNet or VoroNet
+    model : BandNet
     out_path : str or os.PathLike
         ``.onnx`` file, written atomically.
     near : float
@@ -109,16 +105,12 @@ def export_model(model: torch.nn.Module, out_path, *, near: float, metadata: dic
     example = model.network_input(check_grids()[0], near=near)
     names = list(model.input_names)
     inputs = tuple(torch.from_numpy(example.arrays[name]) for name in names)
-    if isinstance(model, BandNet):
-        # Every row count depends on the grid; the 27 taps, 8 children and the channel do not.
-        dynamic = {name: {0: f"{name}_rows"} for name in names}
-        entries = {"context": repr(model.context)}
-    else:
-        dynamic = {"sdf_voxels": {2: "d", 3: "h", 4: "w"}, "nodes": {0: "n"}}
-        entries = {"receptive_radius": str(model.receptive_radius)}
+    # Every row count depends on the grid; the 27 taps, 8 children and the channel do not.
+    dynamic = {name: {0: f"{name}_rows"} for name in names}
     dynamic.update(offsets={0: "n"}, logits={0: "n"})
-    entries.update({"near": repr(float(near)), "opset": str(OPSET), "model_config": json.dumps(model.config),
-                    **{k: str(v) for k, v in (metadata or {}).items()}})
+    entries = {"near": repr(float(near)), "context": repr(model.context),
+               "receptive_radius": str(model.receptive_radius), "opset": str(OPSET),
+               "model_config": json.dumps(model.config), **{k: str(v) for k, v in (metadata or {}).items()}}
     with atomic_path(out_path, suffix=".onnx") as tmp:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notice

@@ -1,5 +1,4 @@
-"""Two-stage training of a network of :mod:`voro3d.learn.model` (:class:`~voro3d.learn.model.BandNet`
-or :class:`~voro3d.learn.model.VoroNet`, by the config's ``model.arch``), as in the paper.
+"""Two-stage training of :class:`~voro3d.learn.model.BandNet`, as in the paper.
 
 Stage 1 trains the CNN and MLP1 (offsets) with VoroLoss plus ``reg_weight`` times the largest
 offset norm; stage 2 freezes both and trains MLP2 (occupancy) with binary cross-entropy against
@@ -50,7 +49,7 @@ DEFAULTS = {
              "n_train": 360, "n_val": 16, "train_seed": 7, "val_seed": 1001, "grids": [32, 64],
              "n_samples": 50_000, "mesh_dir": None, "n_organic": 0, "n_thin": 0, "n_cut": 0},
     # Keyword arguments of the network named by "arch" (voro3d.learn.model.build_model checks them).
-    "model": {"arch": "dense", "width": 16, "coarse_width": 32, "head_width": 64, "truncation": 3.0},
+    "model": {"arch": "band", "widths": [16, 32, 64], "head_width": 64, "context": 3.0},
     "near": 1.0,
     "band": BAND,
     "stage1": {"epochs": 20, "batch_size": 2, "lr": 3e-3, "final_lr_fraction": 0.05, "reg_weight": 2e-3,
@@ -94,7 +93,7 @@ def load_config(path) -> dict:
             raise ValueError(f"{path}: unknown config key {key!r}; known: {sorted(config)}")
         if key == "model" and isinstance(value, dict):
             # Each network has its own arguments: merge over the defaults of the same arch only.
-            base = config["model"] if value.get("arch", "dense") == config["model"]["arch"] else {}
+            base = config["model"] if value.get("arch", "band") == config["model"]["arch"] else {}
             config["model"] = {**base, **value}
             try:
                 build_model(config["model"])
@@ -139,7 +138,7 @@ def shape_loss(model: torch.nn.Module, sdf: np.ndarray, samples: np.ndarray, *, 
 
     Parameters
     ----------
-    model : BandNet or VoroNet
+    model : BandNet
     sdf : (g, g, g) float32
     samples : (m, 3) float32
         Surface samples in the grid's ``[-1, 1]^3`` frame.
