@@ -27,45 +27,34 @@ def _mlp(n_in: int, width: int, n_out: int) -> nn.Sequential:
                          nn.Linear(width, n_out))
 
 
-class _SparseConv(nn.Module):
-    """Submanifold 3^3 convolution: gather each node's 27 neighbours' features, one matmul.
+class _GatherConv(nn.Module):
+    """A convolution over indexed nodes: gather each output node's ``taps`` input rows, one matmul.
 
-    ``forward(x, neighbours)``: ``x (n, c_in)``, ``neighbours (m, 27)`` int64 rows of ``x``
-    (``n`` = absent, read as zeros) -> ``(m, c_out)``. ``m`` may differ from ``n``: the
-    convolution can be evaluated at a subset of the nodes.
+    ``forward(x, taps_index)``: ``x (n, c_in)``, ``taps_index (m, taps)`` int64 rows of ``x``
+    (``n`` = absent, read as zeros) -> ``(m, c_out)``. With the 27 neighbours of a node it is a
+    submanifold 3^3 convolution (``m`` may differ from ``n``: it can be evaluated at a subset of
+    the nodes); with the 8 children of a coarse node, in parity order, a stride-2 2^3 one.
     """
 
-    def __init__(self, c_in: int, c_out: int):
+    def __init__(self, c_in: int, c_out: int, taps: int = 27):
         super().__init__()
-        self.linear = nn.Linear(27 * c_in, c_out)
+        self.linear = nn.Linear(taps * c_in, c_out)
 
-    def forward(self, x, neighbours):
-        rows = nn.functional.pad(x, (0, 0, 0, 1)).index_select(0, neighbours.flatten())
-        return self.linear(rows.view(neighbours.shape[0], -1))
+    def forward(self, x, taps_index):
+        rows = nn.functional.pad(x, (0, 0, 0, 1)).index_select(0, taps_index.flatten())
+        return self.linear(rows.view(taps_index.shape[0], -1))
 
 
 class _SparseResidual(nn.Module):
     def __init__(self, channels: int):
         super().__init__()
-        self.first = _SparseConv(channels, channels)
-        self.second = _SparseConv(channels, channels)
+        self.first = _GatherConv(channels, channels)
+        self.second = _GatherConv(channels, channels)
         with torch.no_grad():
             self.second.linear.weight.mul_(0.1)  # start close to the identity
 
     def forward(self, x, neighbours):
         return torch.relu(x + self.second(torch.relu(self.first(x, neighbours)), neighbours))
-
-
-class _Down(nn.Module):
-    """Stride-2 2^3 convolution: the children's features in parity order, one matmul (absent = zeros)."""
-
-    def __init__(self, c_in: int, c_out: int):
-        super().__init__()
-        self.linear = nn.Linear(8 * c_in, c_out)
-
-    def forward(self, x, children):
-        rows = nn.functional.pad(x, (0, 0, 0, 1)).index_select(0, children.flatten())
-        return self.linear(rows.view(children.shape[0], -1))
 
 
 class _Up(nn.Module):
@@ -120,16 +109,16 @@ class BandNet(nn.Module):
         w0, w1, w2 = (int(w) for w in widths)
         self.config = {"arch": "band", "widths": [w0, w1, w2], "head_width": head_width, "context": float(context)}
         self.context = float(context)
-        self.stem = _SparseConv(1, w0)
+        self.stem = _GatherConv(1, w0)
         self.res0 = _SparseResidual(w0)
-        self.down1 = _Down(w0, w1)
+        self.down1 = _GatherConv(w0, w1, taps=8)
         self.res1 = nn.ModuleList([_SparseResidual(w1), _SparseResidual(w1)])
-        self.down2 = _Down(w1, w2)
+        self.down2 = _GatherConv(w1, w2, taps=8)
         self.res2 = nn.ModuleList([_SparseResidual(w2), _SparseResidual(w2)])
         self.up2 = _Up(w2, w1)
         self.res1_up = _SparseResidual(w1)
         self.up1 = _Up(w1, w0)
-        self.head = _SparseConv(w0, head_width)
+        self.head = _GatherConv(w0, head_width)
         features = head_width + 27
         self.offset_head = _mlp(features, head_width, 3)
         self.occupancy_head = _mlp(features + 3, head_width, 1)
