@@ -575,6 +575,13 @@ void replay(Mesh& mesh, State& state, const CleanLog& log, std::size_t& collapse
     touched[v.idx()] = 1;
     for (const auto h : mesh.halfedges_around_target(mesh.halfedge(v))) touched[mesh.source(h).idx()] = 1;
   };
+  // An untouched change takes the bounds and volume it was logged with.
+  auto reuse_logged = [&](const Operation& operation) {
+    for (std::uint32_t i = operation.first; i < operation.last; ++i) {
+      state.bound[Face(log.bounds[i].first)] = log.bounds[i].second;
+    }
+    state.volume_change += operation.volume;
+  };
   for (const auto& operation : log.operations) {
     if (operation.kind == Operation::kPass) {
       for (const auto face : mesh.faces()) state.bound[face] = 0;
@@ -601,10 +608,7 @@ void replay(Mesh& mesh, State& state, const CleanLog& log, std::size_t& collapse
       state.merges.parent[(kept == a ? b : a).idx()] = kept.idx();
       ++collapses;
       if (same) {
-        for (std::uint32_t i = operation.first; i < operation.last; ++i) {
-          state.bound[Face(log.bounds[i].first)] = log.bounds[i].second;
-        }
-        state.volume_change += operation.volume;
+        reuse_logged(operation);
       } else {
         for (const auto& [face, bound] : state.accepted) state.bound[face] = bound;
         state.volume_change += state.accepted_volume;
@@ -624,10 +628,7 @@ void replay(Mesh& mesh, State& state, const CleanLog& log, std::size_t& collapse
     CGAL::Euler::flip_edge(h, mesh);
     ++flips;
     if (same) {
-      for (std::uint32_t i = operation.first; i < operation.last; ++i) {
-        state.bound[Face(log.bounds[i].first)] = log.bounds[i].second;
-      }
-      state.volume_change += operation.volume;
+      reuse_logged(operation);
     } else {
       state.bound[mesh.face(h)] = state.bound[mesh.face(o)] = bound;
       state.volume_change += volume;
