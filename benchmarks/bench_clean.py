@@ -307,15 +307,19 @@ def write_tables(rows, grids, out: Path):
         if r["status"] != "ok":
             lines.append(f"| {r['shape']} | {r['grid']} | failed: {r['error']} |" + " |" * 9)
             continue
-        u, c, m = r["uncleaned"], r["cleaned"], r["mc"]
-        lines.append(
-            f"| {r['shape']}{' *' if r['open_input'] else ''} | {r['grid']} | {u['n_triangles']} -> {c['n_triangles']} | "
-            f"{u['off_normal_share']:.1%} / {c['off_normal_share']:.1%} / {m['off_normal_share']:.1%} | "
-            f"{u['sliver_share']:.1%} / {c['sliver_share']:.1%} | {u['chamfer_x1e5']:.3f} / {c['chamfer_x1e5']:.3f} | "
-            f"{u['f1']:.3f} / {c['f1']:.3f} | {u['nc']:.3f} / {c['nc']:.3f} | {r['clean_seconds']:.2f} | "
-            f"{r['fit_seconds']:.1f} | {c['watertight']} | {r['clean']['rounds']} |")
+        lines.append(f"| {r['shape']}{' *' if r['open_input'] else ''} | {r['grid']} | {_before_after_cells(r)} | "
+                     f"{r['fit_seconds']:.1f} | {r['cleaned']['watertight']} | {r['clean']['rounds']} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
+
+
+def _before_after_cells(row) -> str:
+    """The per-shape cells both tables share: faces, off-normal (with MC's), slivers, CD, F1, NC, clean s."""
+    u, c, m = row["uncleaned"], row["cleaned"], row["mc"]
+    return (f"{u['n_triangles']} -> {c['n_triangles']} | "
+            f"{u['off_normal_share']:.1%} / {c['off_normal_share']:.1%} / {m['off_normal_share']:.1%} | "
+            f"{u['sliver_share']:.1%} / {c['sliver_share']:.1%} | {u['chamfer_x1e5']:.3f} / {c['chamfer_x1e5']:.3f} | "
+            f"{u['f1']:.3f} / {c['f1']:.3f} | {u['nc']:.3f} / {c['nc']:.3f} | {row['clean_seconds']:.2f}")
 
 
 def write_cloud_tables(rows, out: Path):
@@ -344,13 +348,9 @@ def write_cloud_tables(rows, out: Path):
         if r["status"] != "ok":
             lines.append(f"| {r['shape']} | {r['condition']} | | failed: {r['error']} |" + " |" * 9)
             continue
-        u, c, m = r["uncleaned"], r["cleaned"], r["mc"]
         lines.append(
-            f"| {r['shape']} | {r['condition']} | {r['grid']} | {u['n_triangles']} -> {c['n_triangles']} | "
-            f"{u['off_normal_share']:.1%} / {c['off_normal_share']:.1%} / {m['off_normal_share']:.1%} | "
-            f"{u['sliver_share']:.1%} / {c['sliver_share']:.1%} | {u['chamfer_x1e5']:.3f} / {c['chamfer_x1e5']:.3f} | "
-            f"{u['f1']:.3f} / {c['f1']:.3f} | {u['nc']:.3f} / {c['nc']:.3f} | {r['clean_seconds']:.2f} | "
-            f"{r['reconstruct_seconds']:.1f} | {c['watertight']} | "
+            f"| {r['shape']} | {r['condition']} | {r['grid']} | {_before_after_cells(r)} | "
+            f"{r['reconstruct_seconds']:.1f} | {r['cleaned']['watertight']} | "
             f"{max(r['distance_to_uncleaned_max'], r['distance_from_uncleaned_max']):.3f} / {r['distance_bound']:.2f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
