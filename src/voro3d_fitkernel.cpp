@@ -495,10 +495,14 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
     }
     auto given = py::array_t<std::int64_t, py::array::forcecast>(row_array);
     rows.assign(given.data(), given.data() + m);
+    // Distinct rows: two samples written to one row would race between threads.
+    std::vector<char> taken(static_cast<std::size_t>(out.shape(0)), 0);
     for (std::int64_t row : rows) {
       if (row < 0 || row >= out.shape(0)) {
         throw py::value_error("rows holds " + std::to_string(row) + ", outside [0, " + std::to_string(out.shape(0)) + ")");
       }
+      if (taken[row]) throw py::value_error("rows holds " + std::to_string(row) + " twice; rows must be distinct");
+      taken[row] = 1;
     }
   }
   const std::int64_t* row_data = rows.empty() ? nullptr : rows.data();
@@ -566,7 +570,7 @@ threads : int
 out : (r, k) int32 writeable C-contiguous array, optional
 rows : (m,) int array, optional
     Given together: the answer for sample ``s`` is written to ``out[rows[s]]`` (other rows are
-    left as they are) and ``out`` is returned.
+    left as they are) and ``out`` is returned. Rows must be distinct.
 
 Returns
 -------
@@ -575,8 +579,8 @@ Returns
 Raises
 ------
 ValueError
-    Bad shapes, NaN or inf, k outside [1, n], cell <= 0, threads < 1, rows outside ``out``,
-    ``out`` without ``rows`` or the other way round.
+    Bad shapes, NaN or inf, k outside [1, n], cell <= 0, threads < 1, rows outside ``out`` or
+    repeated, ``out`` without ``rows`` or the other way round.
 TypeError
     Not arrays, or wrong dtypes.
 )doc");

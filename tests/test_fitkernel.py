@@ -196,6 +196,7 @@ def test_nearest_generators_write_the_rows_asked_for():
     (dict(out=np.zeros((20, 3), np.int32), rows=np.arange(20)), ValueError, r"out must have shape \(rows, 4\), got \(20, 3\)"),
     (dict(out=np.zeros((20, 4), np.int32), rows=np.arange(19)), ValueError, r"rows must have shape \(20,\)"),
     (dict(out=np.zeros((20, 4), np.int32), rows=np.arange(1, 21)), ValueError, r"rows holds 20, outside \[0, 20\)"),
+    (dict(out=np.zeros((20, 4), np.int32), rows=np.r_[np.arange(19), 3]), ValueError, "rows holds 3 twice"),
     (dict(out=np.zeros((20, 8), np.int32)[:, ::2], rows=np.arange(20)), ValueError, "out must be writeable and C-contiguous"),
 ])
 def test_nearest_generators_bad_out(kwargs, error, match):
