@@ -20,7 +20,7 @@ from .occupancy import label_cells
 from .queries import InsideOutside
 from .sampling import sample_surface
 
-__all__ = ["FitInfo", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples"]
+__all__ = ["FitInfo", "MAX_REFRESH_DISTANCE", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples"]
 
 # Surface samples per grid face, n_samples = SAMPLES_PER_FACE * grid**2 (official code).
 SAMPLES_PER_FACE = 150
