@@ -9,7 +9,8 @@ from voro3d.infer import NEAR, Predictor, sdf_at  # noqa: E402
 from voro3d.learn.data import ShapeSet, build_dataset, cad_shape, organic_shape, thin_shape  # noqa: E402
 from voro3d.learn.export import TOLERANCE, check_grids, export_onnx  # noqa: E402
 from voro3d.learn.model import BandNet, build_model, load_checkpoint  # noqa: E402
-from voro3d.learn.train import augment, load_config, shape_loss, train_main  # noqa: E402
+from voro3d.learn.pack import SDF_LEVELS, pack_dataset, unpack_dataset  # noqa: E402
+from voro3d.learn.train import augment, batch_loss, join_inputs, load_config, train_main  # noqa: E402
 from voro3d.queries import InsideOutside  # noqa: E402
 from voro3d.sampling import grid_nodes  # noqa: E402
 
@@ -116,13 +117,65 @@ def test_loss_decreases_on_one_shape(tiny_run):
     model = BandNet()
     optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
     losses = []
+    batch = [(model.network_input(shape[f"sdf_{GRID}"], near=NEAR), shape["samples"])]
     for _ in range(50):  # 25 steps bring the loss to 0.85 of its first value, 50 to 0.50
         optimizer.zero_grad()
-        loss, _ = shape_loss(model, shape[f"sdf_{GRID}"], shape["samples"], near=NEAR, reg_weight=2e-3)
+        loss, _ = batch_loss(model, batch, reg_weight=2e-3)
         loss.backward()
         optimizer.step()
         losses.append(loss.item())
     assert np.mean(losses[-5:]) < 0.8 * losses[0]
+
+
+def test_joined_batch_equals_separate_shapes(tiny_run):
+    root, _, _ = tiny_run
+    torch.manual_seed(0)
+    model = BandNet(widths=(4, 8, 8), head_width=16)
+    shapes = [ShapeSet([root / "train" / f"shape_0000{i}.npz"])[0] for i in range(3)]
+    inputs = [model.network_input(s[f"sdf_{GRID}"], near=NEAR) for s in shapes]
+    arrays, bounds = join_inputs(inputs)
+    with torch.no_grad():
+        joined = model(**{k: torch.from_numpy(v) for k, v in arrays.items()})
+        for s, net_input in enumerate(inputs):
+            alone = model(**{k: torch.from_numpy(v) for k, v in net_input.arrays.items()})
+            for a, b in zip(alone, joined):
+                torch.testing.assert_close(a, b[bounds[s]:bounds[s + 1]], rtol=1e-5, atol=1e-6)
+    # The batch loss is the mean of the shapes' losses.
+    batch = [(x, s["samples"][:1500]) for x, s in zip(inputs, shapes)]
+    mean = np.mean([batch_loss(model, [one], reg_weight=2e-3)[0].item() for one in batch])
+    assert batch_loss(model, batch, reg_weight=2e-3)[0].item() == pytest.approx(mean, rel=1e-5)
+
+
+def test_pack_round_trip_is_close_and_trains(tiny_run, tmp_path):
+    root, path, _ = tiny_run
+    pack = pack_dataset(root / "train", tmp_path / "train.npz", n_samples=1000)
+    files = unpack_dataset(pack, tmp_path / "train")
+    names = json.loads((root / "train" / "index.json").read_text())["files"]
+    original = ShapeSet([root / "train" / name for name in names])
+    unpacked = ShapeSet(files)
+    assert len(unpacked) == len(original) == 4
+    step = 2.0 / (GRID - 1)
+    for i in range(4):
+        a, b = original[i], unpacked[i]
+        near = np.abs(a[f"sdf_{GRID}"]) < 3.25 * step
+        assert np.abs(a[f"sdf_{GRID}"] - b[f"sdf_{GRID}"])[near].max() <= 0.5 / SDF_LEVELS * step * 1.001
+        assert np.all(np.abs(b[f"sdf_{GRID}"])[~near] >= 3.25 * step * 0.999)
+        assert b["samples"].shape == (1000, 3)
+        gap = np.linalg.norm(b["samples"][:, None] - a["samples"][None], axis=2).min(axis=1)
+        assert gap.max() < 2.0 / 4095  # within a quantisation step of an original sample
+    # A stage-1 run on the unpacked set needs no mesh: no detail validation, stage 2 skipped.
+    config = json.loads(path.read_text())
+    config["data"].update(train_dir=str(tmp_path / "train"), val_dir=str(tmp_path / "train"), n_val=3, val_seed=7)
+    config.update(run_dir=str(tmp_path / "run"), workers=1)
+    config["stage1"].update(epochs=5, time_budget_s=0.01)
+    config["stage2"]["epochs"] = 0
+    config["validation"]["n_detail"] = 0
+    (tmp_path / "packed.json").write_text(json.dumps(config))
+    _, state = load_checkpoint(train_main(tmp_path / "packed.json"))
+    assert [h["stage"] for h in state["history"]] == [1]  # the budget stopped it after one epoch
+    assert np.isfinite(state["history"][0][f"val_voroloss_{GRID}"])
+    assert np.isnan(state["history"][0][f"val_chamfer_x1e5_{GRID}"])
+    assert (state["stage"], state["epoch"]) == (2, 0)
 
 
 def test_train_main_writes_outputs_and_resumes(tiny_run):

@@ -5,7 +5,8 @@ from scipy.spatial import Delaunay, cKDTree
 
 from voro3d.generators import initial_generators
 from voro3d import loss as loss_module
-from voro3d.loss import DEFAULT_K, _argmin_rows_, bisector_distance, knn_candidates, voroloss
+from voro3d.loss import (DEFAULT_K, KNN_BLOCK, _argmin_rows_, bisector_distance, knn_candidates,
+                         nearest_indices_on_device, voroloss)
 
 DEVICES = [
     "cpu",
@@ -163,6 +164,17 @@ def test_knn_candidates_are_the_nearest_in_order():
     distance, _ = cKDTree(generators).query(samples, k=11)
     found_distance = np.linalg.norm(samples[:, None] - generators[found], axis=-1)
     np.testing.assert_allclose(found_distance, distance, rtol=1e-5)
+
+
+def test_device_search_matches_the_kd_tree_across_blocks():
+    rng = np.random.default_rng(4)
+    generators = rng.uniform(-1, 1, (300, 3))
+    samples = rng.uniform(-1, 1, (KNN_BLOCK + 500, 3))  # two blocks
+    found = nearest_indices_on_device(torch.from_numpy(samples), torch.from_numpy(generators), 11)
+    assert found.dtype == torch.int64 and found.shape == (samples.shape[0], 11)
+    distance, _ = cKDTree(generators).query(samples, k=11)
+    found_distance = np.linalg.norm(samples[:, None] - generators[found.numpy()], axis=-1)
+    np.testing.assert_allclose(found_distance, distance, rtol=1e-6)
 
 
 def test_knn_candidates_cap_k_and_accept_tensors():

@@ -18,8 +18,8 @@ import torch
 
 from ._validate import as_points, positive_int
 
-__all__ = ["DEFAULT_K", "PAIR_BLOCK", "bisector_distance", "bisector_pairs", "knn_candidates", "nearest_indices",
-           "voroloss"]
+__all__ = ["DEFAULT_K", "KNN_BLOCK", "PAIR_BLOCK", "bisector_distance", "bisector_pairs", "knn_candidates",
+           "nearest_indices", "nearest_indices_on_device", "voroloss"]
 
 # The official code (``Voroloss``, ``VoronoiValues.kedge + 1``) searches the nearest generator
 # plus the 10 next ones. The generators of a fit form a band about one voxel deep on each side of
@@ -83,6 +83,35 @@ def nearest_indices(points: np.ndarray, sites: np.ndarray, k: int) -> np.ndarray
     return indices.numpy()
 
 
+# Samples per block of the on-device search: a (block, n) distance matrix, 1 GB at n = 16k.
+KNN_BLOCK = 16384
+
+
+def nearest_indices_on_device(points: torch.Tensor, sites: torch.Tensor, k: int) -> torch.Tensor:
+    """The ``k`` nearest sites of each point, nearest first, by brute force on the tensors' device.
+
+    On a GPU a blocked distance matrix and ``topk`` beat copying to the host for a KD-tree
+    (training batches hold a few thousand generators per shape); on a CPU use :func:`nearest_indices`.
+
+    Parameters
+    ----------
+    points : (m, 3) float torch.Tensor
+    sites : (n, 3) float torch.Tensor, same device, ``n >= k``
+    k : int
+
+    Returns
+    -------
+    (m, k) int64 torch.Tensor
+    """
+    found = torch.empty((points.shape[0], k), dtype=torch.int64, device=points.device)
+    with torch.no_grad():
+        for start in range(0, points.shape[0], KNN_BLOCK):
+            block = points[start:start + KNN_BLOCK]
+            distance = torch.cdist(block, sites.to(block.dtype))
+            found[start:start + KNN_BLOCK] = distance.topk(k, dim=1, largest=False, sorted=True).indices
+    return found
+
+
 def voroloss(samples, generators, *, k: int | None = None, candidates=None) -> torch.Tensor:
     """Mean squared distance from samples to the boundary of the Voronoi cell holding each one.
 
@@ -96,7 +125,8 @@ def voroloss(samples, generators, *, k: int | None = None, candidates=None) -> t
         both the nearest generator ``q_i`` and the bisector's other generator ``q_j``).
     k : int, optional
         Generators searched per sample (the nearest plus ``k - 1`` others); default ``DEFAULT_K``.
-        Not with ``candidates``, which fix the generators searched.
+        Not with ``candidates``, which fix the generators searched. Searched with
+        :func:`knn_candidates` for CPU tensors, on the device otherwise.
     candidates : (m, c) int array or torch.Tensor, optional
         Generator indices to search per sample, ``c >= 2``, e.g. from :func:`knn_candidates`
         on earlier generator positions. The nearest generator is re-ranked among them, so they
@@ -141,7 +171,11 @@ def voroloss(samples, generators, *, k: int | None = None, candidates=None) -> t
     if samples.shape[0] == 0:
         raise ValueError("samples must hold at least 1 point, got 0")
     if candidates is None:
-        candidates = knn_candidates(samples.detach(), generators.detach(), k=DEFAULT_K if k is None else k)
+        k = DEFAULT_K if k is None else positive_int(k, "k", minimum=2)
+        if generators.device.type == "cpu":
+            candidates = knn_candidates(samples.detach(), generators.detach(), k=k)
+        else:
+            candidates = nearest_indices_on_device(samples.detach(), generators.detach(), min(k, generators.shape[0]))
     candidates = torch.as_tensor(candidates, device=generators.device)
     if candidates.dtype.is_floating_point or candidates.dtype == torch.bool or candidates.ndim != 2:
         raise ValueError("candidates must be an integer array of shape (m, c), "

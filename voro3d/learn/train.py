@@ -10,7 +10,16 @@ Both stages see exactly the network input that :class:`voro3d.infer.Predictor` b
 model's ``network_input``). VoroLoss is
 measured in voxel units (divided by the squared voxel size), so grids of every size weigh the
 same. A batch is ``batch_size`` shapes, each at a grid size drawn with ``grid_weights`` and
-(stage 1) a random axis permutation and flips; their losses are averaged before one step.
+(stage 1) a random axis permutation and flips; the network runs once on their band graphs joined
+into one (:func:`join_inputs`) and their losses are averaged before one step. ``workers``
+processes prepare the batches (augmentation and band indices, numpy) while the network trains.
+
+``device`` runs stage 1 and the validation VoroLoss on another torch device (``"cuda"``): the
+kNN search then runs there too. ``stage1.time_budget_s`` trains for that many wall-clock seconds
+instead of a number of epochs, annealing the learning rate over the time (a GPU machine lent for
+a fixed time; the result then depends on the machine's speed). With ``validation.n_detail = 0``
+no mesh-based metric is computed, so a stage-1 run needs neither Open3D nor the meshes
+(:mod:`voro3d.learn.pack`); stage 2 always runs on the CPU.
 
 Run ``python -m voro3d.learn.train models/voromesh_sdf.json`` (or :func:`train_main`). Relative
 paths in the config resolve against the working directory. Everything random derives from
@@ -37,11 +46,14 @@ from . import machine_description
 from .data import ShapeSet, build_dataset
 from .model import build_model, load_checkpoint, save_checkpoint
 
-__all__ = ["augment", "cell_labels", "load_config", "shape_loss", "train_main"]
+__all__ = ["augment", "batch_loss", "cell_labels", "join_inputs", "load_config", "train_main"]
 
 DEFAULTS = {
     "seed": 0,
     "threads": 1,
+    # Torch device of stage 1 ("cpu", "cuda", ...) and processes preparing its batches (0: in the loop).
+    "device": "cpu",
+    "workers": 0,
     "run_dir": "runs/voromesh_sdf",
     # A checkpoint whose weights start the run (a new run continuing an earlier one), or None.
     "init": None,
@@ -53,7 +65,8 @@ DEFAULTS = {
     "near": 1.0,
     "band": BAND,
     "stage1": {"epochs": 20, "batch_size": 2, "lr": 3e-3, "final_lr_fraction": 0.05, "reg_weight": 2e-3,
-               "samples_per_shape": 20_000, "grid_weights": [0.7, 0.3], "augment": True},
+               "samples_per_shape": 20_000, "grid_weights": [0.7, 0.3], "augment": True,
+               "time_budget_s": None},
     "stage2": {"epochs": 12, "batch_size": 4096, "lr": 1e-3, "n_shapes": 80, "nodes_per_shape": 3000},
     "validation": {"n_detail": 4, "cd_points": 10_000},
 }
@@ -123,27 +136,69 @@ def augment(sdf: np.ndarray, points: np.ndarray, rng: np.random.Generator) -> tu
     return sdf, points
 
 
-def _as_torch(net_input: NetworkInput) -> dict:
-    return {name: torch.from_numpy(array) for name, array in net_input.arrays.items()}
+def _as_torch(arrays: dict, device="cpu") -> dict:
+    return {name: torch.from_numpy(array).to(device) for name, array in arrays.items()}
 
 
 def _generators(net_input: NetworkInput, offsets: torch.Tensor) -> torch.Tensor:
     """``(n, 3)`` float32 generators in ``[-1, 1]^3``: node positions plus offsets times the voxel size."""
-    return torch.from_numpy(net_input.positions.astype(np.float32)) + net_input.step * offsets
+    positions = torch.from_numpy(net_input.positions.astype(np.float32)).to(offsets.device)
+    return positions + net_input.step * offsets
 
 
-def shape_loss(model: torch.nn.Module, sdf: np.ndarray, samples: np.ndarray, *, near: float,
+def join_inputs(inputs: list[NetworkInput]) -> tuple[dict, np.ndarray]:
+    """Band inputs of several shapes as one graph, for one network call.
+
+    Each level's rows are stacked and every index shifted by the rows of the shapes before it;
+    indices of absent nodes (a shape's row count) become the joined graph's absent row. The
+    network's outputs for the joined graph are those of the shapes, in order (its layers are
+    all per node or per neighbourhood).
+
+    Parameters
+    ----------
+    inputs : list of NetworkInput
+        From :func:`voro3d.infer.band_input` (three levels).
+
+    Returns
+    -------
+    arrays : dict of str to numpy.ndarray
+        The joined :data:`voro3d.infer.BAND_INPUTS`.
+    bounds : (len(inputs) + 1,) int64
+        Shape ``s`` owns output rows ``bounds[s]:bounds[s + 1]``.
+    """
+    counts = {level: np.array([x.arrays[f"neighbours{level}"].shape[0] for x in inputs]) for level in range(3)}
+    starts = {level: np.concatenate([[0], np.cumsum(c)]) for level, c in counts.items()}
+
+    def shifted(name, s, level):
+        # Rows of `level`: the absent index (that shape's count) maps to the joined absent row.
+        index = inputs[s].arrays[name]
+        return np.where(index == counts[level][s], starts[level][-1], index + starts[level][s])
+
+    arrays = {"band_sdf": np.concatenate([x.arrays["band_sdf"] for x in inputs])}
+    for level in range(3):
+        arrays[f"neighbours{level}"] = np.concatenate([shifted(f"neighbours{level}", s, level)
+                                                       for s in range(len(inputs))])
+    for level in (1, 2):
+        arrays[f"children{level}"] = np.concatenate([shifted(f"children{level}", s, level - 1)
+                                                     for s in range(len(inputs))])
+        arrays[f"up{level}"] = np.concatenate([x.arrays[f"up{level}"] + 8 * starts[level][s]
+                                               for s, x in enumerate(inputs)])
+    arrays["targets"] = np.concatenate([x.arrays["targets"] + starts[0][s] for s, x in enumerate(inputs)])
+    bounds = np.concatenate([[0], np.cumsum([x.arrays["targets"].shape[0] for x in inputs])])
+    return arrays, bounds
+
+
+def batch_loss(model: torch.nn.Module, shapes: list[tuple[NetworkInput, np.ndarray]], *,
                reg_weight: float) -> tuple[torch.Tensor, dict]:
-    """Stage-1 loss of one shape: VoroLoss in voxel units plus ``reg_weight`` times the largest offset.
+    """Stage-1 loss of a batch: the mean over shapes of VoroLoss in voxel units plus ``reg_weight`` times the largest offset.
 
     Parameters
     ----------
     model : BandNet
-    sdf : (g, g, g) float32
-    samples : (m, 3) float32
-        Surface samples in the grid's ``[-1, 1]^3`` frame.
-    near : float
-        Node threshold in voxels.
+        On the device the loss is computed on.
+    shapes : list of (NetworkInput, (m, 3) float32)
+        Each shape's band input (``model.network_input``) and surface samples in the grid's
+        ``[-1, 1]^3`` frame.
     reg_weight : float
         The paper's lambda, per voxel of offset.
 
@@ -152,14 +207,20 @@ def shape_loss(model: torch.nn.Module, sdf: np.ndarray, samples: np.ndarray, *, 
     loss : torch.Tensor
         0-dim, differentiable in the model's CNN and MLP1 parameters.
     parts : dict
-        ``voroloss`` (voxel^2) and ``max_offset`` (voxels) as floats.
+        Means over the shapes of ``voroloss`` (voxel^2) and ``max_offset`` (voxels), as floats.
     """
-    net_input = model.network_input(sdf, near=near)
-    features = model.node_features(**_as_torch(net_input))
-    offsets = model.offset_head(features)
-    distance = voroloss(torch.from_numpy(samples), _generators(net_input, offsets)) / net_input.step**2
-    largest = offsets.norm(dim=1).max()
-    return distance + reg_weight * largest, {"voroloss": distance.item(), "max_offset": largest.item()}
+    device = next(model.parameters()).device
+    arrays, bounds = join_inputs([net_input for net_input, _ in shapes])
+    offsets = model.offset_head(model.node_features(**_as_torch(arrays, device)))
+    losses, distances, largest = [], [], []
+    for s, (net_input, samples) in enumerate(shapes):
+        own = offsets[bounds[s]:bounds[s + 1]]
+        samples_t = torch.from_numpy(samples).to(device)
+        distances.append(voroloss(samples_t, _generators(net_input, own)) / net_input.step**2)
+        largest.append(own.norm(dim=1).max())
+        losses.append(distances[-1] + reg_weight * largest[-1])
+    return torch.stack(losses).mean(), {"voroloss": torch.stack(distances).mean().item(),
+                                        "max_offset": torch.stack(largest).mean().item()}
 
 
 def cell_labels(mesh_queries, net_input: NetworkInput, generators: np.ndarray, sdf: np.ndarray, *,
@@ -190,20 +251,27 @@ def cell_labels(mesh_queries, net_input: NetworkInput, generators: np.ndarray, s
 
 
 class _Validation:
-    """Fixed validation shapes, their labels' inputs, and the Marching Cubes scores to beat."""
+    """Fixed validation shapes, their labels' inputs, and the Marching Cubes scores to beat.
+
+    Every shape gives a VoroLoss; the first ``n_detail`` also an occupancy accuracy and a Chamfer
+    distance against the mesh, and Marching Cubes' on the same grid (these need Open3D and the
+    meshes; with ``n_detail = 0`` they are NaN).
+    """
 
     def __init__(self, shapes: ShapeSet, grids, n_detail: int, cd_points: int):
-        from ..baselines import marching_cubes
-        from ..metrics import evaluate
-        from ..queries import InsideOutside
-
         self.shapes = [shapes[i] for i in range(len(shapes))]
         self.grids = list(grids)
         self.detail = list(range(min(n_detail, len(self.shapes))))
         self.cd_points = cd_points
+        self.queries, self.mc = {}, {grid: float("nan") for grid in self.grids}
+        if not self.detail:
+            return
+        from ..baselines import marching_cubes
+        from ..metrics import evaluate
+        from ..queries import InsideOutside
+
         self.queries = {i: InsideOutside((self.shapes[i]["vertices"], self.shapes[i]["triangles"]))
                         for i in self.detail}
-        self.mc = {}
         for grid in self.grids:
             scores = [evaluate(marching_cubes(self.shapes[i][f"sdf_{grid}"]), self._gt(i), n_samples=cd_points)
                       for i in self.detail]
@@ -214,9 +282,8 @@ class _Validation:
 
     def run(self, model: torch.nn.Module, *, near: float, band: float, stage: int) -> dict:
         """Validation metrics; stage 1 labels cells by the SDF sign at the generator (MLP2 is untrained)."""
-        from ..metrics import evaluate
-
         model.eval()
+        device = next(model.parameters()).device
         result = {}
         for grid in self.grids:
             losses, correct, total, chamfers = [], 0, 0, []
@@ -224,11 +291,14 @@ class _Validation:
                 sdf = shape[f"sdf_{grid}"]
                 net_input = model.network_input(sdf, near=near)
                 with torch.no_grad():
-                    offsets, logits = model(**_as_torch(net_input))
+                    offsets, logits = model(**_as_torch(net_input.arrays, device))
                     generators = _generators(net_input, offsets)
                     losses.append(float(voroloss(torch.from_numpy(shape["samples"]), generators)) / net_input.step**2)
                 if i not in self.detail:
                     continue
+                from ..metrics import evaluate
+
+                offsets, logits, generators = offsets.cpu(), logits.cpu(), generators.cpu()
                 if stage == 1:
                     logits = torch.from_numpy(-sdf_at(sdf, generators.double().numpy()))
                 generators = generators.double().numpy()
@@ -239,7 +309,7 @@ class _Validation:
                                 band=band)
                 chamfers.append(evaluate(voro.to_open3d(), self._gt(i), n_samples=self.cd_points)["chamfer_x1e5"])
             result[f"val_voroloss_{grid}"] = float(np.mean(losses))
-            result[f"val_occupancy_accuracy_{grid}"] = correct / max(total, 1)
+            result[f"val_occupancy_accuracy_{grid}"] = correct / total if total else float("nan")
             result[f"val_chamfer_x1e5_{grid}"] = float(np.mean(chamfers)) if chamfers else float("nan")
             result[f"val_mc_chamfer_x1e5_{grid}"] = self.mc[grid]
         return result
@@ -282,30 +352,63 @@ def _plot(history: list[dict], path: Path, grids) -> None:
     plt.close(figure)
 
 
-def _stage1_epoch(model, optimizer, scheduler, shapes: ShapeSet, config: dict, epoch: int, progress) -> dict:
-    stage = config["stage1"]
-    grids = config["data"]["grids"]
-    rng = np.random.default_rng([config["seed"], 1, epoch])
-    order = rng.permutation(len(shapes))
-    model.train()
-    totals = []
-    for start in range(0, len(order), stage["batch_size"]):
-        optimizer.zero_grad()
-        batch = order[start:start + stage["batch_size"]]
-        parts = []
-        for i in batch:
-            shape = shapes[int(i)]
-            grid = int(rng.choice(grids, p=np.asarray(stage["grid_weights"]) / np.sum(stage["grid_weights"])))
-            pick = rng.choice(shape["samples"].shape[0], size=stage["samples_per_shape"], replace=False)
-            sdf, samples = shape[f"sdf_{grid}"], shape["samples"][pick]
+class _Stage1Batches(torch.utils.data.Dataset):
+    """The batches of one stage-1 epoch, each a list of ``(NetworkInput, samples)``.
+
+    Batch ``b`` draws its grid sizes, samples and augmentations from a generator seeded by
+    ``(seed, 1, epoch, b)``, so the batches do not depend on which worker makes them or when.
+    """
+
+    def __init__(self, shapes: ShapeSet, config: dict, epoch: int, model: torch.nn.Module):
+        self.shapes, self.config, self.epoch = shapes, config, epoch
+        self.context = model.context
+        stage = config["stage1"]
+        order = np.random.default_rng([config["seed"], 1, epoch]).permutation(len(shapes))
+        self.batches = [order[start:start + stage["batch_size"]] for start in range(0, len(order), stage["batch_size"])]
+
+    def __len__(self) -> int:
+        return len(self.batches)
+
+    def __getitem__(self, b: int) -> list:
+        from ..infer import band_input
+
+        config, stage = self.config, self.config["stage1"]
+        rng = np.random.default_rng([config["seed"], 1, self.epoch, b])
+        weights = np.asarray(stage["grid_weights"], float)
+        batch = []
+        for i in self.batches[b]:
+            shape = self.shapes[int(i)]
+            grid = int(rng.choice(config["data"]["grids"], p=weights / weights.sum()))
+            count = min(stage["samples_per_shape"], shape["samples"].shape[0])
+            sdf, samples = shape[f"sdf_{grid}"], shape["samples"][rng.choice(shape["samples"].shape[0], count,
+                                                                            replace=False)]
             if stage["augment"]:
                 sdf, samples = augment(sdf, samples, rng)
-            loss, part = shape_loss(model, sdf, samples, near=config["near"], reg_weight=stage["reg_weight"])
-            (loss / len(batch)).backward()
-            parts.append(loss.item())
+            batch.append((band_input(sdf, near=config["near"], context=self.context), samples))
+        return batch
+
+
+def _as_batch(batch):
+    """The DataLoader's collate step: a batch is already one item of :class:`_Stage1Batches`."""
+    return batch
+
+
+def _stage1_epoch(model, optimizer, step_lr, shapes: ShapeSet, config: dict, epoch: int, progress) -> dict:
+    """One pass over the training shapes; ``step_lr()`` runs after every optimizer step."""
+    batches = _Stage1Batches(shapes, config, epoch, model)
+    workers = int(config["workers"])
+    loader = torch.utils.data.DataLoader(batches, batch_size=None, shuffle=False, num_workers=workers,
+                                         collate_fn=_as_batch, prefetch_factor=4 if workers else None,
+                                         persistent_workers=False)
+    model.train()
+    totals = []
+    for batch in loader:
+        optimizer.zero_grad()
+        loss, _ = batch_loss(model, batch, reg_weight=config["stage1"]["reg_weight"])
+        loss.backward()
         optimizer.step()
-        scheduler.step()
-        totals.append(float(np.mean(parts)))
+        step_lr()
+        totals.append(loss.item())
         progress.update(len(batch))
         progress.set_postfix(loss=f"{totals[-1]:.4f}")
     return {"train_loss": float(np.mean(totals))}
@@ -326,7 +429,7 @@ def _occupancy_table(model: torch.nn.Module, shapes: ShapeSet, indices, grids, *
             sdf = shape[f"sdf_{grid}"]
             net_input = model.network_input(sdf, near=near)
             with torch.no_grad():
-                feature = model.node_features(**_as_torch(net_input))
+                feature = model.node_features(**_as_torch(net_input.arrays))
                 offset = model.offset_head(feature)
             generators = _generators(net_input, offset).double().numpy()
             label = cell_labels(queries, net_input, generators, sdf, near=near, band=band)
@@ -384,6 +487,7 @@ def train_main(config_path) -> Path:
             raise ValueError(f"init checkpoint {config['init']} holds a {start.config} model, "
                              f"not the configured {model.config}")
         model = start
+    model.to(config["device"])  # before any optimizer: its state follows the parameters' device
     s1, s2 = config["stage1"], config["stage2"]
     steps_per_epoch = -(-len(train) // s1["batch_size"])
     optimizer = torch.optim.Adam(list(model.parameters()), lr=s1["lr"])
@@ -394,6 +498,7 @@ def train_main(config_path) -> Path:
     last = run_dir / "last.pt"
     if last.is_file():
         model, state = load_checkpoint(last)
+        model.to(config["device"])
         history, seconds, stage, epoch = state["history"], state["seconds"], state["stage"], state["epoch"]
         optimizer = torch.optim.Adam(list(model.parameters()), lr=s1["lr"])
         scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=s1["epochs"] * steps_per_epoch,
@@ -410,19 +515,35 @@ def train_main(config_path) -> Path:
             Path(tmp).write_text(json.dumps(history, indent=1))
         _plot(history, run_dir / "loss_curve.png", grids)
 
+    budget, clock, first_epoch = s1["time_budget_s"], time.monotonic(), epoch
+
+    def step_lr():
+        if budget is None:
+            scheduler.step()
+            return
+        # Cosine annealing over the wall-clock budget instead of the steps.
+        fraction = min(1.0, (time.monotonic() - clock) / budget)
+        for group in optimizer.param_groups:
+            group["lr"] = s1["lr"] * (s1["final_lr_fraction"] + (1 - s1["final_lr_fraction"])
+                                      * 0.5 * (1 + np.cos(np.pi * fraction)))
+
     while stage == 1 and epoch < s1["epochs"]:
         started = time.process_time()
         with tqdm(total=len(train), desc=f"stage 1 epoch {epoch + 1}/{s1['epochs']}", unit="shape",
                   leave=False) as progress:
-            metrics = _stage1_epoch(model, optimizer, scheduler, train, config, epoch, progress)
+            metrics = _stage1_epoch(model, optimizer, step_lr, train, config, epoch, progress)
         seconds["stage1"] += time.process_time() - started
         metrics.update(validation.run(model, near=config["near"], band=config["band"], stage=1), stage=1, epoch=epoch)
         history.append(metrics)
         tqdm.write(json.dumps(metrics))
         epoch += 1
         checkpoint(last, optimizer=optimizer.state_dict(), scheduler=scheduler.state_dict())
+        elapsed = time.monotonic() - clock
+        if budget is not None and elapsed * (epoch - first_epoch + 1) / (epoch - first_epoch) > budget:
+            break  # another epoch would overrun the budget
     if stage == 1:
         stage, epoch = 2, 0
+    model.to("cpu")
 
     # Stage 2: the CNN and MLP1 are frozen, so their outputs are computed once per shape.
     for parameter in model.parameters():
