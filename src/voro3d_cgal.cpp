@@ -26,6 +26,7 @@
 namespace py = pybind11;
 
 using voro3d::check_indices;
+using voro3d::check_mask;
 using voro3d::check_points;
 using voro3d::Indices;
 using voro3d::Points;
@@ -162,9 +163,17 @@ bool meet(const Piece& p, const Piece& q) {
 // Pairs (i < j) of triangles that share no vertex index and whose closed point sets intersect,
 // decided exactly. Candidates are the pairs whose bounding boxes meet (CGAL's box intersection,
 // Zomorodian and Edelsbrunner), so the cost follows the number of nearby pairs, not its square.
-py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in, const py::object& triangles_in) {
+// With `changed`, a (t,) bool mask, only the pairs with at least one changed triangle are tested.
+py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in, const py::object& triangles_in,
+                                                  const py::object& changed_in) {
   Points vertices = check_points(vertices_in, "vertices", 0);
   Indices triangles = check_indices(triangles_in, "triangles", 3, "t", vertices.shape(0), "vertices");
+  std::vector<char> changed;
+  if (!changed_in.is_none()) {
+    auto mask = check_mask(changed_in, "changed", triangles.shape(0)).unchecked<1>();
+    changed.resize(static_cast<std::size_t>(triangles.shape(0)));
+    for (py::ssize_t i = 0; i < triangles.shape(0); ++i) changed[i] = mask(i);
+  }
   auto v = vertices.unchecked<2>();
   auto t = triangles.unchecked<2>();
   const auto f = static_cast<std::size_t>(triangles.shape(0));
@@ -194,15 +203,30 @@ py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in,
       }
       return false;
     };
-    // Closed boxes: boxes that only touch are candidates too.
-    CGAL::box_self_intersection_d(boxes.begin(), boxes.end(), [&](const Box& x, const Box& y) {
+    auto test = [&](const Box& x, const Box& y) {
       const std::size_t i = std::min(x.info(), y.info());
       const std::size_t j = std::max(x.info(), y.info());
       if (!shares_index(i, j) && meet(pieces[i], pieces[j])) {
         pairs.push_back(static_cast<std::int64_t>(i));
         pairs.push_back(static_cast<std::int64_t>(j));
       }
-    });
+    };
+    // Closed boxes: boxes that only touch are candidates too.
+    if (changed.empty()) {
+      CGAL::box_self_intersection_d(boxes.begin(), boxes.end(), test);
+    } else {
+      // Changed boxes against all: a pair of two changed triangles comes once from each side and
+      // is kept from the side of its smaller index.
+      std::vector<Box> changed_boxes;
+      for (const auto& box : boxes) {
+        if (changed[box.info()]) changed_boxes.push_back(box);
+      }
+      CGAL::box_intersection_d(changed_boxes.begin(), changed_boxes.end(), boxes.begin(), boxes.end(),
+                               [&](const Box& x, const Box& y) {
+                                 if (x.info() == y.info() || (changed[y.info()] && y.info() < x.info())) return;
+                                 test(x, y);
+                               });
+    }
     // Sorted, so that the order does not depend on how the box intersection split its work.
     std::vector<std::pair<std::int64_t, std::int64_t>> sorted(pairs.size() / 2);
     for (std::size_t k = 0; k < sorted.size(); ++k) sorted[k] = {pairs[2 * k], pairs[2 * k + 1]};
@@ -229,7 +253,9 @@ PYBIND11_MODULE(_cgal, module) {
              "Circumcentres (m, 3) of the (m, 4) tets indexing finite (n, 3) points, computed exactly, "
              "rounded to float64. Flat tets are a ValueError.");
   module.def("self_intersecting_pairs", &self_intersecting_pairs, py::arg("vertices"), py::arg("triangles"),
+             py::arg("changed") = py::none(),
              "(p, 2) int64 sorted pairs i < j of the (t, 3) triangles over finite (n, 3) vertices that share "
              "no vertex index and intersect, touching included, decided with exact predicates; collinear "
-             "triangles count as their segment.");
+             "triangles count as their segment. With changed, a (t,) bool mask, only the pairs holding a "
+             "changed triangle.");
 }

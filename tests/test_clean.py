@@ -4,7 +4,8 @@ import open3d as o3d
 import pytest
 
 from voro3d import _cgal
-from voro3d.cleaning import MAX_DISTANCE, MAX_VOLUME_CHANGE, clean, clean_surface, voxel_size
+from voro3d.cleaning import (MAX_DISTANCE, MAX_VOLUME_CHANGE, _changed_triangles, _shared_positions, clean,
+                              clean_surface, voxel_size)
 from voro3d.metrics import triangle_quality
 from voro3d.extract import voronoi_surface
 from voro3d.sampling import sample_surface
@@ -93,6 +94,36 @@ def test_crossings_freeze_a_patch_and_clean_again():
     _, _, cells = assert_clean(*random_surface(2, "random"))
     assert plate.rounds > 1 and cells.rounds > 1
     assert cells.frozen_vertices > 0
+
+
+def test_a_round_after_a_replay_tests_the_triangles_it_changed():
+    """Triangles with the corner positions of the last round's are not tested again, unless they
+    crossed then or touch a duplicated position; moved ones are."""
+    vertices, triangles, _ = clean_surface(*random_surface(0, "ball"))
+    none = np.zeros(0, np.int64)
+    rng = np.random.default_rng(0)
+    # The same surface, triangles shuffled and their corners rotated: nothing changed.
+    order = rng.permutation(len(triangles))
+    again = np.roll(triangles[order], 1, axis=1)
+    assert not _changed_triangles(vertices, again, vertices, triangles, np.zeros((0, 2), np.int64), none).any()
+    moved = vertices.copy()
+    moved[5] += 1e-9
+    crossing = np.array([[0, 1]])
+    changed = _changed_triangles(moved, triangles, vertices, triangles, crossing, np.array([7]))
+    expected = (triangles == 5).any(axis=1) | (triangles == 7).any(axis=1)
+    expected[[0, 1]] = True
+    assert np.array_equal(changed, expected)
+    assert _changed_triangles(vertices, triangles, vertices, triangles[:0], np.zeros((0, 2), np.int64), none).all()
+
+
+def test_shared_positions_match_unique_rows():
+    rng = np.random.default_rng(1)
+    vertices = rng.normal(size=(500, 3))
+    vertices[rng.integers(0, 500, 40)] = vertices[rng.integers(0, 500, 40)]
+    vertices[:20, 0] = 0.5  # equal x, different points
+    _, first, counts = np.unique(vertices, axis=0, return_inverse=True, return_counts=True)
+    assert np.array_equal(_shared_positions(vertices), counts[first.reshape(-1)] > 1)
+    assert not _shared_positions(vertices[:0]).size
 
 
 def test_sheets_touching_at_a_vertex_stay_touching():

@@ -144,6 +144,24 @@ def test_random_soups_agree_with_open3d(seed):
     assert sorted(map(tuple, crossing.tolist())) == sorted(map(tuple, expected.tolist()))
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_changed_tests_only_the_pairs_that_hold_a_changed_triangle(seed):
+    rng = np.random.default_rng(seed)
+    corners = rng.uniform(0, 1, (80, 1, 3)) + rng.uniform(-0.3, 0.3, (80, 3, 3))
+    vertices, triangles = corners.reshape(-1, 3), np.arange(240).reshape(-1, 3)
+    triangles[1] = [0, 4, 5]  # a neighbour of triangle 0: never tested
+    crossing, touching = self_intersections(vertices, triangles)
+    changed = rng.random(80) < 0.2
+    part, part_touching = self_intersections(vertices, triangles, changed=changed)
+    assert len(part) and np.array_equal(part, crossing[changed[crossing].any(axis=1)])
+    assert part_touching.size == touching.size == 0
+    everything, _ = self_intersections(vertices, triangles, changed=np.ones(80, bool))
+    assert np.array_equal(everything, crossing)
+    assert self_intersections(vertices, triangles, changed=np.zeros(80, bool))[0].shape == (0, 2)
+    with pytest.raises(ValueError, match="changed"):
+        self_intersections(vertices, triangles, changed=np.ones(79, bool))
+
+
 def test_assert_closed_manifold_names_the_failures():
     with pytest.raises(RuntimeError, match="closed"):
         assert_closed_manifold(TET_V, TET_F[:3])

@@ -113,7 +113,8 @@ def check_watertight(mesh, *, self_intersection: bool = True) -> WatertightRepor
     )
 
 
-def self_intersections(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def self_intersections(vertices: np.ndarray, triangles: np.ndarray, *,
+                       changed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Triangle pairs that intersect, decided exactly.
 
     The compiled extension (``voro3d._cgal.self_intersecting_pairs``) finds the pairs whose
@@ -127,6 +128,9 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.
     ----------
     vertices : (n, 3) float64
     triangles : (t, 3) int
+    changed : (t,) bool, optional
+        Test only the pairs that hold at least one of these triangles (a surface whose other
+        pairs were tested before).
 
     Returns
     -------
@@ -137,14 +141,15 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.
     Raises
     ------
     ValueError
-        ``vertices`` not finite ``(n, 3)``, ``triangles`` not ``(t, 3)`` or indexing outside ``vertices``.
+        ``vertices`` not finite ``(n, 3)``, ``triangles`` not ``(t, 3)`` or indexing outside ``vertices``,
+        ``changed`` not a ``(t,)`` bool array.
     """
     from . import _cgal
 
     vertices, triangles = np.asarray(vertices, np.float64), np.asarray(triangles)
     if triangles.size == 0:
         return np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64)
-    pairs = _cgal.self_intersecting_pairs(vertices, triangles)
+    pairs = _cgal.self_intersecting_pairs(vertices, triangles, changed)
     a = vertices[triangles[pairs[:, 0]]]
     b = vertices[triangles[pairs[:, 1]]]
     shared_position = (a[:, :, None, :] == b[:, None, :, :]).all(axis=3).any(axis=(1, 2))
