@@ -520,10 +520,14 @@ bool keeps_geometry(const Mesh& mesh, const Profile& profile, const Point& place
   };
   const auto& link = profile.link();
   const std::size_t n = link.size();
+  if (n == 0) return true;
+  // The connection of one step along the link is the next step's first: each is looked up once.
+  const auto first = connection(link[n - 1], link[0]);
+  auto e12 = first;
   for (std::size_t i = 0; i < n; ++i) {
     const Vertex k1 = link[(i + n - 1) % n], k2 = link[i], k3 = link[(i + 1) % n];
-    const auto e12 = connection(k1, k2);
-    const auto e23 = k3 != k1 ? connection(k2, k3) : Mesh::null_halfedge();
+    const auto next = i + 1 < n ? connection(k2, k3) : first;
+    const auto e23 = k3 != k1 ? next : Mesh::null_halfedge();
     if (e12 != Mesh::null_halfedge() && e23 != Mesh::null_halfedge() &&
         !shared_triangles_valid(placement, mesh.point(k1), mesh.point(k2), mesh.point(k3))) {
       return false;
@@ -536,6 +540,7 @@ bool keeps_geometry(const Mesh& mesh, const Profile& profile, const Point& place
     if (k5 != Mesh::null_vertex() && !shared_triangles_valid(mesh.point(k2), mesh.point(k5), mesh.point(k3), placement)) {
       return false;
     }
+    e12 = next;
   }
   return true;
 }
@@ -626,14 +631,15 @@ std::size_t collapse_short_edges(Mesh& mesh, State& state, double length, const 
   return collapses;
 }
 
-double smallest_angle(const Point& a, const Point& b, const Point& c) {
+// The cosine of the smallest angle of a triangle (1 when two corners coincide).
+double smallest_angle_cosine(const Point& a, const Point& b, const Point& c) {
   const double ab = CGAL::squared_distance(a, b), bc = CGAL::squared_distance(b, c), ca = CGAL::squared_distance(c, a);
   // The smallest angle faces the shortest side; its cosine by the law of cosines.
   double opposite = ab, s1 = bc, s2 = ca;
   if (bc < opposite) opposite = bc, s1 = ab, s2 = ca;
   if (ca < opposite) opposite = ca, s1 = ab, s2 = bc;
-  if (!(s1 > 0 && s2 > 0)) return 0;
-  return std::acos(std::clamp((s1 + s2 - opposite) / (2 * std::sqrt(s1 * s2)), -1.0, 1.0));
+  if (!(s1 > 0 && s2 > 0)) return 1;
+  return std::clamp((s1 + s2 - opposite) / (2 * std::sqrt(s1 * s2)), -1.0, 1.0);
 }
 
 // Whether flipping the edge of `h` raises the smallest angle of its two triangles by more than
@@ -645,11 +651,13 @@ bool bound_flip(const Mesh& mesh, const State& state, Mesh::Halfedge_index h, do
   const Vertex s = mesh.source(h), t = mesh.target(h);
   const Vertex a = mesh.target(mesh.next(h)), b = mesh.target(mesh.next(o));
   if ((*state.frozen)[s.idx()] || (*state.frozen)[t.idx()] || a == b) return false;
-  if (mesh.halfedge(a, b) != Mesh::null_halfedge()) return false;
   const Point &ps = mesh.point(s), &pt = mesh.point(t), &pa = mesh.point(a), &pb = mesh.point(b);
-  const double old_angle = std::min(smallest_angle(ps, pt, pa), smallest_angle(pt, ps, pb));
-  const double new_angle = std::min(smallest_angle(pa, ps, pb), smallest_angle(pb, pt, pa));
-  if (!(new_angle > old_angle + margin)) return false;
+  // The smallest angle of a pair is that of the largest cosine; an angle that does not grow is
+  // told without acos.
+  const double old_cosine = std::max(smallest_angle_cosine(ps, pt, pa), smallest_angle_cosine(pt, ps, pb));
+  const double new_cosine = std::max(smallest_angle_cosine(pa, ps, pb), smallest_angle_cosine(pb, pt, pa));
+  if (!(new_cosine < old_cosine && std::acos(new_cosine) > std::acos(old_cosine) + margin)) return false;
+  if (mesh.halfedge(a, b) != Mesh::null_halfedge()) return false;
   Patch patch{{ps, pt, pa, pb}, {{0, 1, 2}, {1, 0, 3}}, {{2, 0, 3}, {3, 1, 2}}, {}, {}, {{0, 1}}, {{2, 3}}};
   const double gap = graph_gap(patch);
   bound = gap + std::max(state.bound[mesh.face(h)], state.bound[mesh.face(o)]);
