@@ -182,7 +182,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
         seconds = time.perf_counter() - start
         report = check_watertight(mesh)
         row["voromesh"] = dict(evaluate(mesh, source), seconds=seconds, split=info.seconds, grid=info.grid,
-                               noise=info.noise, outliers=info.n_outliers, smoothed=info.smoothed,
+                               noise=info.noise, outliers=info.n_outliers, smoothed=info.smoothed, target=info.target,
                                watertight=bool(report.watertight),
                                crossing_pairs=int(report.self_intersecting_pairs), pieces=_pieces(mesh))
         if colours is not None:
@@ -343,18 +343,18 @@ def write(out: Path, meta, rows, scans):
                          f"{fmt(p)} | {v['pieces']} | {p['pieces']} | {v['watertight']} | {v['seconds']:.1f} | "
                          f"{p['seconds']:.1f} |")
     lines += ["", "## Per shape and condition", "",
-              "| shape | condition | VoroMesh CD / NC / F1 | Poisson CD / NC / F1 (depth) | pieces | grid | noise est. | "
-              "outliers removed | s (VoroMesh / Poisson) |", "|---|---|---|---|---|---|---|---|---|"]
+              "| shape | condition | VoroMesh CD / NC / F1 | Poisson CD / NC / F1 (depth) | pieces | grid | target | noise est. | "
+              "outliers removed | s (VoroMesh / Poisson) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         v, p = r["voromesh"], r["poisson"]
         if "error" in v:
-            lines.append(f"| {r['shape']} | {r['condition']} | {v['error']} | | | | | | |")
+            lines.append(f"| {r['shape']} | {r['condition']} | {v['error']} | | | | | | | |")
             continue
         timed_out = "*" if p.get("orientation", "").endswith("(timeout)") else ""
         poisson_cell = f"{p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / {p['f1']:.3f} ({p['depth']}{timed_out})" if p else "-"
         lines.append(f"| {r['shape']} | {r['condition']} | {v['chamfer_x1e5']:.3f} / {v['nc']:.3f} / {v['f1']:.3f} | "
                      f"{poisson_cell} | {v['pieces']} | "
-                     f"{v['grid']} | {v['noise']:.2g} | {v['outliers']} | {v['seconds']:.1f} / {p.get('seconds', float('nan')):.1f} |")
+                     f"{v['grid']} | {v.get('target', '-')} | {v['noise']:.2g} | {v['outliers']} | {v['seconds']:.1f} / {p.get('seconds', float('nan')):.1f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 

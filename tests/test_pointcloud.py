@@ -10,7 +10,7 @@ from voro3d.pointcloud import (cloud_stats, fill_ratio, imls, local_dimension, o
                                transfer_colors)
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.reconstruct import MAX_POISSON_ESCAPE
-from voro3d.pointcloud.surface import winding_level
+from voro3d.pointcloud.surface import sheet_surface, winding_level
 from voro3d.reconstruction import reconstruct
 from voro3d.queries import point_areas
 from voro3d.sampling import sample_surface
@@ -131,6 +131,7 @@ def test_sparse_cloud_gives_one_closed_smooth_piece():
     assert check_watertight(out).watertight and _pieces(out) == 1
     scores = evaluate(out, mesh, n_samples=20000)
     assert scores["nc"] > 0.96 and scores["chamfer_x1e5"] < 6  # measured 0.981, 3.0 (IMLS target: 0.977, 16.6)
+    assert info.target == "poisson"
 
 
 def test_outliers_leave_no_debris():
@@ -251,3 +252,37 @@ def test_a_poisson_flap_is_told_from_a_cap(sphere_cloud):
     assert poisson_surface(points[capped], normals[capped], 7).escape(points[capped]) < MAX_POISSON_ESCAPE
     bowl = points[:, 2] < 0.0  # an open bowl: Poisson runs off past the rim
     assert poisson_surface(points[bowl], normals[bowl], 7).escape(points[bowl]) > MAX_POISSON_ESCAPE
+
+
+def test_sheet_surface_wraps_a_thin_plate_and_fills_a_cavity():
+    rng = np.random.default_rng(5)
+    sides = rng.uniform(-0.5, 0.5, (3000, 2))
+    plate = np.column_stack([sides, np.where(np.arange(3000) % 2, 0.005, -0.005)])  # 0.01 thick, spacing ~0.03
+    sheet = sheet_surface(plate, 0.05, 48)
+    assert sheet.inside(np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 0.0]])).all()
+    assert not sheet.inside(np.array([[0.0, 0.0, 0.3], [0.0, 0.0, -0.3], [0.8, 0.0, 0.0]])).any()
+    # The shell runs about the offset from the points (less the half thickness); the blur
+    # pulls it in at the plate's rim, where a few points come out.
+    distance = sheet.distance(plate)
+    assert 0.03 < np.median(distance) < 0.05 and distance.max() < 0.05
+    assert sheet.inside(plate).mean() > 0.95
+    ball = sample_surface(example_mesh("sphere"), 4000, seed=0)[0] * 0.8  # spacing about 0.045
+    # The inside of a closed cloud is a cavity of the shell: filled, a solid ball again.
+    assert sheet_surface(ball, 0.08, 48).inside(np.zeros((1, 3))).all()
+
+
+def test_walls_thinner_than_the_spacing_get_the_sheet_target():
+    from manifold3d import Manifold
+
+    outer = Manifold.cylinder(0.4, 1.0, circular_segments=96)
+    cup = outer - Manifold.cylinder(0.4, 0.97, circular_segments=96).translate([0.0, 0.0, -0.03])
+    mesh = cup.to_mesh()
+    vertices, triangles = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+    points, _ = sample_surface((vertices, triangles), 6000, seed=4)  # spacing ~0.04, walls 0.03 thick
+    shape, info = reconstruct_points(points, grid=32, steps=150)
+    out = shape.to_open3d()
+    assert info.target == "sheet"
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    # The shell is an offset of about a spacing: its distance to the cup stays small, and the
+    # cup's hollow stays open (the point under the lid's middle is outside).
+    assert evaluate(out, (vertices, triangles), n_samples=20000)["chamfer_x1e5"] < 60

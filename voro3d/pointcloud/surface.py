@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TargetSurface", "target_surface", "imls", "winding_level", "supported_pieces"]
+__all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "supported_pieces", "target_surface",
+           "winding_level"]
 
 # Neighbours that enter one IMLS evaluation. Gaussian weights beyond ~3 kernel widths vanish;
 # 32 neighbours cover that for the widths used (0.75-1.5 spacings, more on noisy clouds).
@@ -108,12 +109,7 @@ class TargetSurface:
 
     def distance(self, queries: np.ndarray) -> np.ndarray:
         """(q, 3) fit-frame points -> (q,) float64 distance to the proxy mesh (Open3D, float32)."""
-        import open3d as o3d
-
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
-                            o3d.core.Tensor(self.triangles.astype(np.uint32)))
-        return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
+        return _mesh_distance(self.vertices, self.triangles, queries)
 
     def project(self, queries: np.ndarray) -> np.ndarray:
         """Points of the proxy mesh moved onto the IMLS zero set: one Newton step along the
@@ -125,6 +121,102 @@ class TargetSurface:
         small = np.linalg.norm(move, axis=1) < 2.0 / (self.resolution - 1)
         queries[small] += move[small]
         return queries
+
+
+@dataclass
+class SheetSurface:
+    """The shell at distance ``offset`` around the points (:func:`sheet_surface`), as a target.
+
+    The same interface as :class:`TargetSurface`: ``field`` (negative inside) on a grid over
+    ``[-1, 1]^3``, its Marching Cubes mesh ``vertices, triangles`` (the samples lie on it as they
+    are), and inside/outside from the field alone.
+    """
+
+    field: np.ndarray
+    vertices: np.ndarray
+    triangles: np.ndarray
+    offset: float
+    dense: bool = False
+
+    @property
+    def resolution(self) -> int:
+        return self.field.shape[0]
+
+    def inside(self, queries: np.ndarray) -> np.ndarray:
+        """(q, 3) fit-frame points -> (q,) bool: the trilinear field is negative (outside the grid is outside)."""
+        from scipy.ndimage import map_coordinates
+
+        index = (np.asarray(queries, np.float64) + 1.0) * (0.5 * (self.resolution - 1))
+        return map_coordinates(self.field, index.T, order=1, mode="constant", cval=1.0) < 0
+
+    def distance(self, queries: np.ndarray) -> np.ndarray:
+        """(q, 3) fit-frame points -> (q,) float64 distance to the mesh."""
+        return _mesh_distance(self.vertices, self.triangles, queries)
+
+    def project(self, queries: np.ndarray) -> np.ndarray:
+        """The mesh is the target itself: points on it stay where they are."""
+        return np.array(queries, np.float64)
+
+
+def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
+    """A closed shell around the points at about distance ``offset``: thin walls become thin solids.
+
+    Needs no normals. Where a wall is sampled on both sides closer than the points' spacing,
+    no oriented field can tell its sides apart (the normals of the two sides mix and the IMLS
+    and Poisson fields turn it into a lumpy solid); the level set of the distance to the points
+    is a shell around the wall instead. The distance is blurred by a Gaussian of one node first,
+    so that the union of balls does not show (which pulls the shell in a little at sharp rims).
+    Cavities (regions outside the shell that do not reach the edge of the grid: the inside of a
+    thick, closed part) are filled, and pieces that enclose few points are dropped as for
+    :func:`target_surface`.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        Fit frame.
+    offset : float
+        Fit-frame units: more than half the thickness of the thinnest wall, and more than the
+        gaps between points plus a grid step, or the shell has holes (then cavities stay open).
+    resolution : int
+        Grid nodes per axis.
+
+    Returns
+    -------
+    SheetSurface
+    """
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    from ..sampling import grid_nodes
+
+    step = 2.0 / (resolution - 1)
+    # Beyond a few steps past the offset only the side matters: clamp there (the blur's reach).
+    far = offset + 4.0 * step
+    distance, _ = cKDTree(points).query(grid_nodes(resolution), distance_upper_bound=far, workers=-1)
+    distance = np.minimum(distance, far).reshape((resolution,) * 3)
+    field = ndimage.gaussian_filter(distance, 1.0, mode="nearest") - offset
+    outside, _ = ndimage.label(field >= 0)
+    open_space = np.unique(np.concatenate([np.ravel(np.take(outside, [0, -1], axis=a)) for a in range(3)]))
+    cavity = (outside > 0) & ~np.isin(outside, open_space)
+    field[cavity] = -step
+    for axis in range(3):
+        ends = [slice(None)] * 3
+        ends[axis] = [0, -1]
+        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
+    vertices, triangles = _marching_cubes(field.astype(np.float32))
+    supported = _drop_unsupported(field, vertices, triangles, points, MIN_SUPPORT)
+    if supported is not field:
+        vertices, triangles = _marching_cubes(supported.astype(np.float32))
+    return SheetSurface(supported, vertices * step - 1.0, triangles, float(offset))
+
+
+def _mesh_distance(vertices, triangles, queries) -> np.ndarray:
+    """(q, 3) points -> (q,) float64 distance to a triangle mesh (Open3D, float32)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
 
 
 def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536):
