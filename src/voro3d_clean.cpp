@@ -41,6 +41,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <deque>
 #include <functional>
 #include <memory>
@@ -248,6 +249,11 @@ struct CleanLog {
   double flip_margin = 0;
   std::vector<Operation> operations;
   std::vector<std::pair<std::uint32_t, double>> bounds;  // (face, bound)
+  // The surface the call was given, built, and its arrays: replay_clean copies the mesh when it is
+  // given the same arrays instead of building it again (a tenth of its time at 64^3).
+  std::shared_ptr<const Mesh> input;
+  std::vector<double> input_points;
+  std::vector<std::int64_t> input_triangles;
 
   void add(Operation::Kind kind, std::uint32_t a, std::uint32_t b, const Point& placement,
            const std::vector<std::pair<Face, double>>& face_bounds, double volume) {
@@ -866,6 +872,9 @@ py::tuple clean_surface(const py::object& vertices_in, const py::object& triangl
   auto log = std::make_shared<CleanLog>();
   log->n_vertices = static_cast<std::size_t>(n);
   log->n_triangles = static_cast<std::size_t>(triangles.shape(0));
+  log->input = std::make_shared<const Mesh>(mesh);
+  log->input_points.assign(vertices.data(), vertices.data() + vertices.size());
+  log->input_triangles.assign(triangles.data(), triangles.data() + triangles.size());
   // The bounds restart at zero each pass, against that pass's input: the Hausdorff distance obeys
   // the triangle inequality, so the passes' budgets add up to max_distance. Two passes of half
   // the budget clean more than one (bunny 64^3: 4.4% of the triangles off the true normal
@@ -910,7 +919,12 @@ py::tuple replay_clean(const py::object& vertices_in, const py::object& triangle
                           std::to_string(log->n_triangles) + " triangles, got " + std::to_string(n) + " and " +
                           std::to_string(triangles.shape(0)));
   }
-  Mesh mesh = mesh_of(vertices, triangles);
+  const bool same_input =
+      log->input &&
+      std::memcmp(log->input_points.data(), vertices.data(), log->input_points.size() * sizeof(double)) == 0 &&
+      std::memcmp(log->input_triangles.data(), triangles.data(),
+                  log->input_triangles.size() * sizeof(std::int64_t)) == 0;
+  Mesh mesh = same_input ? Mesh(*log->input) : mesh_of(vertices, triangles);
   State state = state_of(mesh, frozen, log->max_distance, log->max_volume_change);
   std::size_t collapses = 0, flips = 0;
   {

@@ -320,6 +320,12 @@ def test_replay_makes_the_same_changes_and_spares_frozen_vertices():
     np.testing.assert_array_equal(new_vertices[label[frozen]], vertices[frozen])  # not moved
     assert np.bincount(label[label >= 0])[label[frozen]].max() == 1  # nothing merged into them
     assert check_watertight(spared[:2], self_intersection=False).closed
+    # The log keeps the surface it was made on, built; other arrays of the same size are built anew.
+    everything = np.ones(len(vertices), bool)
+    for given in (vertices * 2, vertices.copy()):
+        kept = _cgal.replay_clean(given, triangles, everything, log)
+        np.testing.assert_array_equal(kept[0], given)
+        assert sorted(map(tuple, np.sort(kept[1], axis=1).tolist())) == sorted(map(tuple, np.sort(triangles, axis=1).tolist()))
 
 
 def test_replay_checks_its_arguments():

@@ -112,8 +112,14 @@ def voxel_size(vertices: np.ndarray, triangles: np.ndarray) -> float:
         Bad arrays (see :func:`voro3d.io.mesh_arrays`), or triangles of zero total area.
     """
     vertices, triangles = mesh_arrays((vertices, triangles))
-    a, b, c = (vertices[triangles[:, i]] for i in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+    # Coordinate by coordinate (np.cross and np.linalg.norm's arithmetic, in their order, at a third
+    # of their time).
+    x, y, z = (np.ascontiguousarray(vertices[:, k]) for k in range(3))
+    i, j, k = (np.ascontiguousarray(triangles[:, m]) for m in range(3))
+    ux, uy, uz = x[j] - x[i], y[j] - y[i], z[j] - z[i]
+    vx, vy, vz = x[k] - x[i], y[k] - y[i], z[k] - z[i]
+    cx, cy, cz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    area = 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz).sum()
     if not area > 0:
         raise ValueError("mesh has zero area: no voxel to estimate (pass voxel=)")
     return float(np.sqrt(area / triangles.shape[0]) / _TRIANGLE_SIDE_PER_VOXEL)
@@ -138,34 +144,34 @@ def _shared_positions(vertices: np.ndarray) -> np.ndarray:
 def _changed_triangles(vertices, triangles, last_vertices, last_triangles, last_crossing, shared):
     """(t,) bool: the triangles whose crossings a round must test, given the last round's surface.
 
-    A pair of triangles both of which the last round had too (the same three corner positions) was
-    tested then: it crosses only if it crossed then. So only the triangles new to this round, those
-    of the last round's crossing pairs and those at a ``shared`` vertex (duplicated positions, where
-    equal positions need not mean equal indices) are changed.
+    A pair of triangles both of which the last round had too (the same corner positions in the same
+    cyclic order) was tested then: it crosses only if it crossed then. So only the triangles new to
+    this round, those of the last round's crossing pairs and those at a ``shared`` vertex
+    (duplicated positions, where equal positions need not mean equal indices) are changed.
     """
-    def corner_keys(points, faces):
-        # A hash of each corner position, summed: the same for any order of the corners.
+    def hashed(points, faces):
+        # A hash of each corner position; faces turned to start at their smallest one, and keyed
+        # by the sum (the same for any starting corner).
         bits = np.ascontiguousarray(points).view(np.uint64).reshape(-1, 3)
         mixed = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15) ^ bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) \
             ^ bits[:, 2] * np.uint64(0x165667B19E3779F9)
-        return mixed[faces].sum(axis=1, dtype=np.uint64)
+        corner = mixed[faces]
+        turn = (np.argmin(corner, axis=1)[:, None] + np.arange(3)) % 3
+        return np.take_along_axis(faces, turn, axis=1), corner.sum(axis=1, dtype=np.uint64)
 
     old = np.ones(len(last_triangles), bool)
     old[last_crossing.reshape(-1)] = False
-    old_index = np.flatnonzero(old)
-    old_keys = corner_keys(last_vertices, last_triangles)[old_index]
-    order = np.argsort(old_keys, kind="stable")
-    old_keys, old_index = old_keys[order], old_index[order]
-    keys = corner_keys(vertices, triangles)
-    found = np.minimum(np.searchsorted(old_keys, keys), max(len(old_keys) - 1, 0))
+    last_faces, last_keys = hashed(last_vertices, last_triangles[old])
+    order = np.argsort(last_keys)
+    last_faces, last_keys = last_faces[order], last_keys[order]
+    faces, keys = hashed(vertices, triangles)
     changed = np.ones(len(triangles), bool)
-    if len(old_keys):
-        candidate = old_keys[found] == keys
-        # Equal hashes, then equal corner sets, checked exactly.
-        corners = vertices[triangles[candidate]]
-        old_corners = last_vertices[last_triangles[old_index[found[candidate]]]]
-        same = (corners[:, :, None, :] == old_corners[:, None, :, :]).all(axis=3).any(axis=2).all(axis=1)
-        changed[np.flatnonzero(candidate)[same]] = False
+    if len(last_keys):
+        found = np.minimum(np.searchsorted(last_keys, keys), len(last_keys) - 1)
+        candidate = np.flatnonzero(last_keys[found] == keys)
+        # Equal keys, then equal corners, checked exactly.
+        same = (vertices[faces[candidate]] == last_vertices[last_faces[found[candidate]]]).all(axis=(1, 2))
+        changed[candidate[same]] = False
     at_shared = np.zeros(len(vertices), bool)
     at_shared[shared[shared >= 0]] = True
     changed |= at_shared[triangles].any(axis=1)
