@@ -68,11 +68,12 @@ MAX_FIELD_RESOLUTION = 160
 # SHEET_GATE median spacings from the points (dev clouds that come out right: under 1.1, a third
 # missing included; a lid with walls thinner than the spacing: 4.6-6.9), and replaces it when its
 # misfit (mean distance points -> surface + surface -> points) is under SHEET_WIN times the
-# target's (the lid: 0.2-0.45; a cloud with a third missing, where the shell is an open bowl:
+# target's (the lid: 0.2-0.55; a cloud with a third missing, where the shell is an open bowl:
 # 0.9 and more).
 SHEET_GATE = 2.0
-SHEET_WIN = 0.5
-# Its offset: this many median spacings, at least a field step and two noise deviations.
+SHEET_WIN = 0.65
+# Its offset: this many median spacings, at least a field step. (The noise estimate is no guide
+# there: it reads the two sides of the walls as noise.)
 SHEET_OFFSET = 1.25
 
 
@@ -236,7 +237,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         target = target_surface(framed, normals, widths, min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION),
                                 dense=dense and not smoothed, level=level)
     if not target.dense:
-        sheet = _sheet_if_closer(target, given, stats.median_spacing, stats.noise,
+        sheet = _sheet_if_closer(target, given, stats.median_spacing,
                                  min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION))
         if sheet is not None:
             target, kind, framed = sheet, "sheet", given
@@ -289,7 +290,7 @@ def _fit_samples(target, points, spacing, grid: int, *, seed: int) -> np.ndarray
     return np.vstack([points, proxy[distance > HOLE_VOXELS * 2.0 / (grid - 1)]])
 
 
-def _sheet_if_closer(target, points, spacing: float, noise: float, resolution: int):
+def _sheet_if_closer(target, points, spacing: float, resolution: int):
     """The offset shell of the points when it fits them much better than ``target``, else None.
 
     Tried only when ``target`` strays from the points (``SHEET_GATE``); kept when its
@@ -301,7 +302,7 @@ def _sheet_if_closer(target, points, spacing: float, noise: float, resolution: i
     strays = _surface_to_points(target, tree)
     if strays <= SHEET_GATE * spacing:
         return None
-    offset = max(2.0 / (resolution - 1), SHEET_OFFSET * spacing, 2.0 * noise)
+    offset = max(2.0 / (resolution - 1), SHEET_OFFSET * spacing)
     sheet = sheet_surface(points, offset, resolution)
     target_misfit = float(np.mean(target.distance(points))) + strays
     return sheet if _misfit(sheet, points, tree) < SHEET_WIN * target_misfit else None
