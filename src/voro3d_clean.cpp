@@ -396,20 +396,21 @@ bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const 
   return true;
 }
 
-Vector normal_of(const Mesh& mesh, Face f, Vertex moved, const Point& placement) {
-  std::array<Point, 3> p;
-  int k = 0;
-  for (const Vertex v : mesh.vertices_around_face(mesh.halfedge(f))) p[k++] = v == moved ? placement : mesh.point(v);
-  return CGAL::cross_product(p[1] - p[0], p[2] - p[0]);
-}
-
 // Whether collapsing the edge of `h` to `placement` turns a face it keeps by 90 degrees or more.
 bool turns_a_face(const Mesh& mesh, Mesh::Halfedge_index h, const Point& placement) {
   for (const Vertex moved : {mesh.source(h), mesh.target(h)}) {
     for (const auto around : mesh.halfedges_around_target(mesh.halfedge(moved))) {
       const Face f = mesh.face(around);
       if (f == mesh.face(h) || f == mesh.face(mesh.opposite(h))) continue;
-      if (normal_of(mesh, f, moved, mesh.point(moved)) * normal_of(mesh, f, moved, placement) <= 0) return true;
+      // The face's normal before and after, from one walk around it.
+      std::array<Point, 3> p, q;
+      int k = 0;
+      for (const Vertex v : mesh.vertices_around_face(mesh.halfedge(f))) {
+        p[k] = mesh.point(v);
+        q[k] = v == moved ? placement : p[k];
+        ++k;
+      }
+      if (CGAL::cross_product(p[1] - p[0], p[2] - p[0]) * CGAL::cross_product(q[1] - q[0], q[2] - q[0]) <= 0) return true;
     }
   }
   return false;
