@@ -10,7 +10,8 @@ from voro3d.learn.data import ShapeSet, build_dataset, cad_shape, organic_shape,
 from voro3d.learn.export import TOLERANCE, check_grids, export_onnx  # noqa: E402
 from voro3d.learn.model import BandNet, build_model, load_checkpoint  # noqa: E402
 from voro3d.learn.pack import SDF_LEVELS, pack_dataset, unpack_dataset  # noqa: E402
-from voro3d.learn.train import augment, batch_loss, join_inputs, load_config, train_main  # noqa: E402
+from voro3d.learn.batches import augment, batch_loss, join_inputs  # noqa: E402
+from voro3d.learn.train import load_config, train_main  # noqa: E402
 from voro3d.queries import InsideOutside  # noqa: E402
 from voro3d.sampling import grid_nodes  # noqa: E402
 
