@@ -322,12 +322,14 @@ def _misfit(target, points, tree) -> float:
 
 
 def _drop_stray_cells(shape):
-    """The VoroMesh with small groups of inside cells, apart from the rest, turned outside.
+    """The VoroMesh with specks of debris relabelled: small groups of cells cut off from their kind.
 
     Inside cells joined by Voronoi faces (Delaunay edges) form groups; a group of fewer than
-    ``STRAY_CELL_SHARE`` of the largest group's cells (and at most 8) is a speck of debris: cells
-    whose label the samples nearby could not settle. Flipping whole cells keeps the surface
-    closed: it is extracted again from the labels.
+    ``STRAY_CELL_SHARE`` of the largest group's cells (and at most 8) is a speck: cells whose
+    label the samples nearby could not settle, turned outside. Likewise a small group of outside
+    cells that does not reach the exterior (the bounding corners) is a bubble in the solid,
+    turned inside. Flipping whole cells keeps the surface closed: it is extracted again from the
+    labels.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -338,20 +340,25 @@ def _drop_stray_cells(shape):
     if shape.occupancy.sum() < 2:
         return shape
     unique, index = np.unique(shape.generators, axis=0, return_inverse=True)
-    inside = np.zeros(len(unique), bool)
+    n = len(unique)
+    inside = np.zeros(n + 8, bool)  # the 8 bounding corners are outside
     inside[index[shape.occupancy]] = True
     _, tets, _ = delaunay_with_box(unique)
     edges = tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
-    edges = edges[(edges < len(unique)).all(axis=1)]
-    edges = edges[inside[edges].all(axis=1)]
-    groups, group = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])),
-                                                    shape=(len(unique), len(unique))), directed=False)
-    size = np.bincount(group[inside], minlength=groups)
-    stray = (size < STRAY_CELL_SHARE * size.max()) & (size <= 8)
-    if not stray[group[inside]].any():
+    same = edges[inside[edges[:, 0]] == inside[edges[:, 1]]]
+    groups, group = connected_components(coo_matrix((np.ones(len(same)), (same[:, 0], same[:, 1])),
+                                                    shape=(n + 8, n + 8)), directed=False)
+    size = np.bincount(group, minlength=groups)
+    kind = np.zeros(groups, bool)
+    kind[group[inside]] = True
+    largest_inside = size[kind].max()
+    stray = kind & (size < STRAY_CELL_SHARE * largest_inside) & (size <= 8)
+    bubble = ~kind & (size <= 8)
+    bubble[group[n:]] = False  # the exterior
+    flip = (stray | bubble)[group[:n]]
+    if not flip.any():
         return shape
-    occupancy = shape.occupancy & ~stray[group[index]]
-    return VoroMesh(shape.generators, occupancy)
+    return VoroMesh(shape.generators, shape.occupancy ^ flip[index])
 
 
 def _check_coverage(target, points, widths) -> None:
