@@ -191,9 +191,11 @@ def _one_cloud(path, condition, queue):
         path = Path(path)
         source = load_mesh(path)
         start = time.perf_counter()
-        shape, cloud_info = reconstruct_points(make_cloud(source, condition))
+        cloud = make_cloud(source, condition)
+        shape, cloud_info = reconstruct_points(cloud)
         reconstruct_seconds = time.perf_counter() - start
         surfaces, info, timing = _surfaces(source, shape, cloud_info.grid, False)
+        surfaces["poisson"] = _best_poisson(cloud, source)
         row = dict(shape=path.name, condition=condition, grid=cloud_info.grid, status="ok",
                    reconstruct_seconds=reconstruct_seconds, **timing)
         row.update(_scores(surfaces, source, info))
@@ -322,6 +324,19 @@ def _before_after_cells(row) -> str:
             f"{u['f1']:.3f} / {c['f1']:.3f} | {u['nc']:.3f} / {c['nc']:.3f} | {row['clean_seconds']:.2f}")
 
 
+def _best_poisson(cloud, source):
+    """Open3D's Poisson pipeline on the same cloud (as ``bench_pointcloud.py`` runs it), the depth
+    with the lower CD: a reference for what the input itself allows (noise, holes)."""
+    from bench_pointcloud import poisson
+
+    from voro3d.io import mesh_arrays
+    from voro3d.metrics import evaluate
+
+    meshes, _ = poisson(cloud)
+    best = min((mesh for mesh, _ in meshes.values()), key=lambda mesh: evaluate(mesh, source)["chamfer_x1e5"])
+    return mesh_arrays(best)
+
+
 def write_cloud_tables(rows, out: Path):
     out.parent.mkdir(parents=True, exist_ok=True)
     load = Path("/proc/loadavg").read_text().split()[:3]
@@ -332,26 +347,28 @@ def write_cloud_tables(rows, out: Path):
     lines = [f"# Cleaned point-cloud outputs ({meta['date']}, {meta['machine']}, load average after {' '.join(load)})",
              "", "Clouds made as `bench_pointcloud.py` makes them, reconstructed by "
              "`voro3d.pointcloud.reconstruct_points` (grid auto); metrics as in `clean_32_64.md`, against the "
-             "mesh the cloud was sampled from; Marching Cubes of that mesh's SDF at the same grid for reference.",
+             "mesh the cloud was sampled from; Marching Cubes of that mesh's SDF at the same grid, and Open3D's "
+             "Poisson pipeline on the same cloud (as `bench_pointcloud.py` runs it, the better depth), for reference.",
              "", "| surface | clouds | " + " | ".join(name for name, _, _ in METRICS) + " | watertight % |",
              "|---|---|" + "---|" * len(METRICS) + "---|"]
-    for surface in SURFACES:
+    for surface in (*SURFACES, "poisson"):
         if ok:
             cells = [fmt.format(np.mean([r[surface][key] for r in ok])) for _, key, fmt in METRICS]
             lines.append(f"| {surface} | {len(ok)} | " + " | ".join(cells) +
                          f" | {100 * np.mean([r[surface]['watertight'] for r in ok]):.0f} |")
     lines += ["", "| shape | condition | grid | faces before -> after | off-normal % unclean / clean / MC | "
               "slivers % unclean / clean | CD unclean / clean | F1 unclean / clean | NC unclean / clean | "
-              "clean s | reconstruct s | watertight | distance max / bound (voxels) |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "clean s | reconstruct s | watertight | distance max / bound (voxels) | off-normal % Poisson |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['shape']} | {r['condition']} | | failed: {r['error']} |" + " |" * 9)
+            lines.append(f"| {r['shape']} | {r['condition']} | | failed: {r['error']} |" + " |" * 10)
             continue
         lines.append(
             f"| {r['shape']} | {r['condition']} | {r['grid']} | {_before_after_cells(r)} | "
             f"{r['reconstruct_seconds']:.1f} | {r['cleaned']['watertight']} | "
-            f"{max(r['distance_to_uncleaned_max'], r['distance_from_uncleaned_max']):.3f} / {r['distance_bound']:.2f} |")
+            f"{max(r['distance_to_uncleaned_max'], r['distance_from_uncleaned_max']):.3f} / {r['distance_bound']:.2f} | "
+            f"{100 * r['poisson']['off_normal_share']:.1f}% |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
 
