@@ -64,13 +64,16 @@ MIN_COVERAGE = 0.9
 # The target field is sampled this many times finer than the VoroMesh grid (at most MAX).
 FIELD_REFINEMENT = 2
 MAX_FIELD_RESOLUTION = 160
-# The offset shell (sheet_surface) is tried when the target's surface lies on average more than
-# SHEET_GATE median spacings from the points (dev clouds that come out right: under 1.1, a third
-# missing included; a lid with walls thinner than the spacing: 4.6-6.9), and replaces it when its
-# misfit (mean distance points -> surface + surface -> points) is under SHEET_WIN times the
-# target's (the lid: 0.2-0.55; a cloud with a third missing, where the shell is an open bowl:
-# 0.9 and more).
-SHEET_GATE = 2.0
+# The offset shell (sheet_surface) is tried when the target misses the points both ways: the
+# points lie on average more than SHEET_POINTS_GATE median spacings from it and its surface more
+# than SHEET_SURFACE_GATE from them. A lid with walls thinner than the spacing reads 0.37-0.62 and
+# 4.2-6.6; clouds that come out right read under 0.08 for the first (holes, real scans: their
+# filled holes lie far from the points, 6-67 spacings for a scan's open side) or under 0.6 for
+# the second (1% noise: the points scatter about the surface, 0.55). The shell replaces the
+# target when its misfit (mean distance points -> surface + surface -> points) is under
+# SHEET_WIN times the target's (the lid: 0.2-0.55).
+SHEET_POINTS_GATE = 0.15
+SHEET_SURFACE_GATE = 2.0
 SHEET_WIN = 0.65
 # Its offset: this many median spacings, at least a field step. (The noise estimate is no guide
 # there: it reads the two sides of the walls as noise.)
@@ -293,19 +296,21 @@ def _fit_samples(target, points, spacing, grid: int, *, seed: int) -> np.ndarray
 def _sheet_if_closer(target, points, spacing: float, resolution: int):
     """The offset shell of the points when it fits them much better than ``target``, else None.
 
-    Tried only when ``target`` strays from the points (``SHEET_GATE``); kept when its
-    :func:`_misfit` is under ``SHEET_WIN`` times the target's.
+    Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
+    ``SHEET_SURFACE_GATE``); kept when its :func:`_misfit` is under ``SHEET_WIN`` times the target's.
     """
     from scipy.spatial import cKDTree
 
+    to_target = float(np.mean(target.distance(points)))
+    if to_target <= SHEET_POINTS_GATE * spacing:
+        return None
     tree = cKDTree(points)
     strays = _surface_to_points(target, tree)
-    if strays <= SHEET_GATE * spacing:
+    if strays <= SHEET_SURFACE_GATE * spacing:
         return None
     offset = max(2.0 / (resolution - 1), SHEET_OFFSET * spacing)
     sheet = sheet_surface(points, offset, resolution)
-    target_misfit = float(np.mean(target.distance(points))) + strays
-    return sheet if _misfit(sheet, points, tree) < SHEET_WIN * target_misfit else None
+    return sheet if _misfit(sheet, points, tree) < SHEET_WIN * (to_target + strays) else None
 
 
 def _surface_to_points(target, tree, n_samples: int = 20_000) -> float:
