@@ -141,11 +141,22 @@ def test_bad_input(kwargs, error, match):
 
 
 def test_releases_the_gil(gil_free):
-    samples, generators = _band(n=400_000)
-    candidates = knn_candidates(samples, generators, k=11)
-    grad = np.zeros_like(generators)
-    elapsed, longest = gil_free(lambda: [_fitkernel.voroloss(samples, generators, candidates, grad) for _ in range(3)])
-    assert elapsed > 0.1 and longest < 0.5 * elapsed, (longest, elapsed)
+    import time
+
+    # One call long enough (over 0.1 s on this machine, whatever its speed) that holding the GIL
+    # would stop the spinning thread for most of it.
+    n = 400_000
+    while True:
+        samples, generators = _band(n=n)
+        candidates = knn_candidates(samples, generators, k=11)
+        grad = np.zeros_like(generators)
+        start = time.perf_counter()
+        _fitkernel.voroloss(samples, generators, candidates, grad)
+        if time.perf_counter() - start > 0.1 or n >= 6_400_000:
+            break
+        n *= 2
+    elapsed, longest = gil_free(lambda: _fitkernel.voroloss(samples, generators, candidates, grad))
+    assert longest < 0.5 * elapsed, (longest, elapsed)
 
 
 @pytest.mark.parametrize("cell", [1e-4, 0.05, 0.3, 10.0])
