@@ -289,6 +289,19 @@ struct State {
   std::uint32_t mark_stamp = 0;
 
   bool volume_allows(double change) const { return std::abs(volume_change + change) <= max_volume_change; }
+
+  // Makes the last accepted change's bounds and volume change those of the surface.
+  void apply_accepted() {
+    for (const auto& [face, face_bound] : accepted) bound[face] = face_bound;
+    volume_change += accepted_volume;
+  }
+
+  // Records a collapse just made (gone merged into kept at placement): merges, bounds, volume, log.
+  void commit_collapse(Vertex gone, Vertex kept, const Point& placement) {
+    merges.parent[gone.idx()] = kept.idx();
+    apply_accepted();
+    log->add(Operation::kCollapse, gone.idx(), kept.idx(), placement, accepted, accepted_volume);
+  }
 };
 
 // The new bound of each face that collapsing v0-v1 to `placement` keeps, into state->accepted;
@@ -465,10 +478,7 @@ std::size_t merge_close_vertices(Mesh& mesh, State& state, double length) {
     if (turns_a_face(mesh, h, middle) || !bound_collapse(mesh, &state, gone, kept, middle)) continue;
     CGAL::Euler::collapse_edge(e, mesh);
     mesh.point(kept) = middle;
-    state.merges.parent[gone.idx()] = kept.idx();
-    for (const auto& [face, bound] : state.accepted) state.bound[face] = bound;
-    state.volume_change += state.accepted_volume;
-    state.log->add(Operation::kCollapse, gone.idx(), kept.idx(), middle, state.accepted, state.accepted_volume);
+    state.commit_collapse(gone, kept, middle);
     ++merges;
     for (const auto around : mesh.halfedges_around_target(mesh.halfedge(kept))) {
       const auto edge = mesh.edge(around);
@@ -621,10 +631,7 @@ std::size_t collapse_short_edges(Mesh& mesh, State& state, double length, const 
     const Vertex kept = CGAL::Euler::collapse_edge(e, mesh, constrained);
     mesh.point(kept) = placement;
     const Vertex gone = kept == profile.v0() ? profile.v1() : profile.v0();
-    state.merges.parent[gone.idx()] = kept.idx();
-    for (const auto& [face, bound] : state.accepted) state.bound[face] = bound;
-    state.volume_change += state.accepted_volume;
-    state.log->add(Operation::kCollapse, gone.idx(), kept.idx(), placement, state.accepted, state.accepted_volume);
+    state.commit_collapse(gone, kept, placement);
     ++collapses;
     // The edges at the kept vertex changed length; the others around its neighbours are queued
     // again if they were taken (a pending one would be queued again where it is).
@@ -759,8 +766,7 @@ void replay(Mesh& mesh, State& state, const CleanLog& log, std::size_t& collapse
       if (same) {
         reuse_logged(operation);
       } else {
-        for (const auto& [face, bound] : state.accepted) state.bound[face] = bound;
-        state.volume_change += state.accepted_volume;
+        state.apply_accepted();
         touched[kept.idx()] = 1;
       }
       continue;
