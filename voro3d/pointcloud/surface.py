@@ -35,7 +35,37 @@ MIN_SUPPORT = 20
 
 
 @dataclass
-class TargetSurface:
+class _GridSurface:
+    """A signed field on a grid over ``[-1, 1]^3`` (the fit frame) and its Marching Cubes mesh."""
+
+    field: np.ndarray
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+    @property
+    def resolution(self) -> int:
+        return self.field.shape[0]
+
+    def _field_at(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Trilinear field at (q, 3) fit-frame points, and their grid indices (q, 3)."""
+        from scipy.ndimage import map_coordinates
+
+        index = (np.asarray(queries, np.float64) + 1.0) * (0.5 * (self.resolution - 1))
+        # Outside the grid is outside: the cval keeps queries beyond [-1, 1]^3 positive.
+        return map_coordinates(self.field, index.T, order=1, mode="constant", cval=1.0), index
+
+    def distance(self, queries: np.ndarray) -> np.ndarray:
+        """(q, 3) fit-frame points -> (q,) float64 distance to the mesh (Open3D, float32)."""
+        import open3d as o3d
+
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
+                            o3d.core.Tensor(self.triangles.astype(np.uint32)))
+        return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
+
+
+@dataclass
+class TargetSurface(_GridSurface):
     """The target surface on a grid over ``[-1, 1]^3`` (the fit frame).
 
     Attributes
@@ -60,9 +90,6 @@ class TargetSurface:
         Near the surface, decide inside by the winding number instead of IMLS (see ``inside``).
     """
 
-    field: np.ndarray
-    vertices: np.ndarray
-    triangles: np.ndarray
     points: np.ndarray
     normals: np.ndarray
     widths: np.ndarray
@@ -70,10 +97,6 @@ class TargetSurface:
     areas: np.ndarray
     level: float
     dense: bool = False
-
-    @property
-    def resolution(self) -> int:
-        return self.field.shape[0]
 
     def inside(self, queries: np.ndarray) -> np.ndarray:
         """(q, 3) fit-frame points -> (q,) bool, True inside.
@@ -84,13 +107,9 @@ class TargetSurface:
         grid step: their winding number is smooth and exact at walls a few points thick), the
         winding number. Pieces removed as debris stay removed.
         """
-        from scipy.ndimage import map_coordinates
-
         queries = np.asarray(queries, np.float64)
         step = 2.0 / (self.resolution - 1)
-        index = (queries + 1.0) * (0.5 * (self.resolution - 1))
-        # Outside the grid is outside: the cval keeps queries beyond [-1, 1]^3 positive.
-        value = map_coordinates(self.field, index.T, order=1, mode="constant", cval=1.0)
+        value, index = self._field_at(queries)
         node = tuple(np.clip(np.rint(index), 0, self.resolution - 1).astype(np.int64).T)
         close = (np.abs(value) < step) & ~self.removed[node]
         if close.any() and self.dense:
@@ -107,10 +126,6 @@ class TargetSurface:
             value[at], _ = imls(self.points, self.normals, self.widths, queries[at], tree=tree)
         return value < 0
 
-    def distance(self, queries: np.ndarray) -> np.ndarray:
-        """(q, 3) fit-frame points -> (q,) float64 distance to the proxy mesh (Open3D, float32)."""
-        return _mesh_distance(self.vertices, self.triangles, queries)
-
     def project(self, queries: np.ndarray) -> np.ndarray:
         """Points of the proxy mesh moved onto the IMLS zero set: one Newton step along the
         field's mean normal, taken only where it moves the point less than a grid step (far from
@@ -124,7 +139,7 @@ class TargetSurface:
 
 
 @dataclass
-class SheetSurface:
+class SheetSurface(_GridSurface):
     """The shell at distance ``offset`` around the points (:func:`sheet_surface`), as a target.
 
     The same interface as :class:`TargetSurface`: ``field`` (negative inside) on a grid over
@@ -132,26 +147,12 @@ class SheetSurface:
     are), and inside/outside from the field alone.
     """
 
-    field: np.ndarray
-    vertices: np.ndarray
-    triangles: np.ndarray
     offset: float
     dense: bool = False
 
-    @property
-    def resolution(self) -> int:
-        return self.field.shape[0]
-
     def inside(self, queries: np.ndarray) -> np.ndarray:
         """(q, 3) fit-frame points -> (q,) bool: the trilinear field is negative (outside the grid is outside)."""
-        from scipy.ndimage import map_coordinates
-
-        index = (np.asarray(queries, np.float64) + 1.0) * (0.5 * (self.resolution - 1))
-        return map_coordinates(self.field, index.T, order=1, mode="constant", cval=1.0) < 0
-
-    def distance(self, queries: np.ndarray) -> np.ndarray:
-        """(q, 3) fit-frame points -> (q,) float64 distance to the mesh."""
-        return _mesh_distance(self.vertices, self.triangles, queries)
+        return self._field_at(queries)[0] < 0
 
     def project(self, queries: np.ndarray) -> np.ndarray:
         """The mesh is the target itself: points on it stay where they are."""
@@ -199,24 +200,8 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     open_space = np.unique(np.concatenate([np.ravel(np.take(outside, [0, -1], axis=a)) for a in range(3)]))
     cavity = (outside > 0) & ~np.isin(outside, open_space)
     field[cavity] = -step
-    for axis in range(3):
-        ends = [slice(None)] * 3
-        ends[axis] = [0, -1]
-        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
-    vertices, triangles = _marching_cubes(field.astype(np.float32))
-    supported = _drop_unsupported(field, vertices, triangles, points, MIN_SUPPORT)
-    if supported is not field:
-        vertices, triangles = _marching_cubes(supported.astype(np.float32))
-    return SheetSurface(supported, vertices * step - 1.0, triangles, float(offset))
-
-
-def _mesh_distance(vertices, triangles, queries) -> np.ndarray:
-    """(q, 3) points -> (q,) float64 distance to a triangle mesh (Open3D, float32)."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
-    return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
+    supported, vertices, triangles = _mesh_field(field, points, MIN_SUPPORT)
+    return SheetSurface(supported, vertices, triangles, float(offset))
 
 
 def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536):
@@ -325,17 +310,8 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
         level = winding_level(points, normals, areas, float(np.median(widths)))
     field[far] = (level - winding) * 2.0 * float(np.median(widths))
     field = field.reshape((resolution,) * 3)
-    # The outermost nodes are outside: a solid that reaches the box (behind a one-sided scan)
-    # is closed a node inside it, where the fit's generators (kept in the box) can straddle it.
-    for axis in range(3):
-        ends = [slice(None)] * 3
-        ends[axis] = [0, -1]
-        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
-    vertices, triangles = _marching_cubes(field.astype(np.float32))
-    supported = _drop_unsupported(field, vertices, triangles, points, min_support)
-    if supported is not field:
-        vertices, triangles = _marching_cubes(supported.astype(np.float32))
-    return TargetSurface(supported, vertices * step - 1.0, triangles, points, normals, widths,
+    supported, vertices, triangles = _mesh_field(field, points, min_support)
+    return TargetSurface(supported, vertices, triangles, points, normals, widths,
                          removed=np.sign(supported) != np.sign(field), areas=areas, level=level, dense=dense)
 
 
@@ -393,6 +369,33 @@ def supported_pieces(vertices, triangles, points, *, min_support: int = MIN_SUPP
     kept = support >= max(min_support, SUPPORT_SHARE * support.max())
     kept[np.argmax(support)] = True
     return piece, kept
+
+
+def _mesh_field(field, points, min_support):
+    """The closed mesh of a target field, without the pieces the points do not support.
+
+    The outermost nodes are set outside (in place): a solid that reaches the box (behind a
+    one-sided scan) is closed a node inside it, where the fit's generators (kept in the box) can
+    straddle it. Then Marching Cubes, and :func:`_drop_unsupported`.
+
+    Returns
+    -------
+    supported : (r, r, r) float64
+        ``field``, or a copy with the unsupported pieces' regions flipped.
+    vertices : (v, 3) float64
+        Fit frame.
+    triangles : (t, 3) int64
+    """
+    step = 2.0 / (field.shape[0] - 1)
+    for axis in range(3):
+        ends = [slice(None)] * 3
+        ends[axis] = [0, -1]
+        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
+    vertices, triangles = _marching_cubes(field.astype(np.float32))
+    supported = _drop_unsupported(field, vertices, triangles, points, min_support)
+    if supported is not field:
+        vertices, triangles = _marching_cubes(supported.astype(np.float32))
+    return supported, vertices * step - 1.0, triangles
 
 
 def _drop_unsupported(field, vertices, triangles, points, min_support):
