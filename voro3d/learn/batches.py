@@ -123,11 +123,11 @@ class Stage1Batches(torch.utils.data.Dataset):
 
     Batch ``b`` draws its grid sizes, samples and augmentations from a generator seeded by
     ``(seed, 1, epoch, b)``, so the batches do not depend on which worker makes them or when.
+    ``context`` is the network's band half-width (its ``network_input``), in voxels.
     """
 
-    def __init__(self, shapes, config: dict, epoch: int, model: torch.nn.Module):
-        self.shapes, self.config, self.epoch = shapes, config, epoch
-        self.context = model.context
+    def __init__(self, shapes, config: dict, epoch: int, context: float):
+        self.shapes, self.config, self.epoch, self.context = shapes, config, epoch, context
         stage = config["stage1"]
         order = np.random.default_rng([config["seed"], 1, epoch]).permutation(len(shapes))
         self.batches = [order[start:start + stage["batch_size"]] for start in range(0, len(order), stage["batch_size"])]

@@ -182,6 +182,8 @@ class _Validation:
 
     def run(self, model: torch.nn.Module, *, near: float, band: float, stage: int) -> dict:
         """Validation metrics; stage 1 labels cells by the SDF sign at the generator (MLP2 is untrained)."""
+        if self.detail:
+            from ..metrics import evaluate
         model.eval()
         device = next(model.parameters()).device
         result = {}
@@ -196,8 +198,6 @@ class _Validation:
                     losses.append(float(voroloss(torch.from_numpy(shape["samples"]), generators)) / net_input.step**2)
                 if i not in self.detail:
                     continue
-                from ..metrics import evaluate
-
                 offsets, logits, generators = offsets.cpu(), logits.cpu(), generators.cpu()
                 if stage == 1:
                     logits = torch.from_numpy(-sdf_at(sdf, generators.double().numpy()))
@@ -254,7 +254,7 @@ def _plot(history: list[dict], path: Path, grids) -> None:
 
 def _stage1_epoch(model, optimizer, step_lr, shapes: ShapeSet, config: dict, epoch: int, progress) -> dict:
     """One pass over the training shapes; ``step_lr()`` runs after every optimizer step."""
-    batches = Stage1Batches(shapes, config, epoch, model)
+    batches = Stage1Batches(shapes, config, epoch, model.context)
     workers = int(config["workers"])
     loader = torch.utils.data.DataLoader(batches, batch_size=None, shuffle=False, num_workers=workers,
                                          collate_fn=as_batch, prefetch_factor=4 if workers else None,
