@@ -236,12 +236,11 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
         target = None
     kind = "poisson" if target is not None else "imls"
+    resolution = min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION)
     if target is None:
-        target = target_surface(framed, normals, widths, min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION),
-                                dense=dense and not smoothed, level=level)
+        target = target_surface(framed, normals, widths, resolution, dense=dense and not smoothed, level=level)
     if not target.dense:
-        sheet = _sheet_if_closer(target, given, stats.median_spacing,
-                                 min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION))
+        sheet = _sheet_if_closer(target, given, stats.median_spacing, resolution)
         if sheet is not None:
             target, kind, framed = sheet, "sheet", given
     _check_coverage(target, framed, widths)
