@@ -325,16 +325,13 @@ def _before_after_cells(row) -> str:
 
 
 def _best_poisson(cloud, source):
-    """Open3D's Poisson pipeline on the same cloud (as ``bench_pointcloud.py`` runs it), the depth
-    with the lower CD: a reference for what the input itself allows (noise, holes)."""
-    from bench_pointcloud import poisson
+    """Open3D's Poisson pipeline on the same cloud (``bench_pointcloud.best_poisson``), as a
+    reference for what the input itself allows (noise, holes)."""
+    from bench_pointcloud import best_poisson
 
     from voro3d.io import mesh_arrays
-    from voro3d.metrics import evaluate
 
-    meshes, _ = poisson(cloud)
-    best = min((mesh for mesh, _ in meshes.values()), key=lambda mesh: evaluate(mesh, source)["chamfer_x1e5"])
-    return mesh_arrays(best)
+    return mesh_arrays(best_poisson(cloud, source)[1])
 
 
 def write_cloud_tables(rows, out: Path):

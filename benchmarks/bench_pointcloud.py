@@ -144,6 +144,22 @@ def poisson(points, colours=None):
     return meshes, orientation
 
 
+def best_poisson(points, source, colours=None):
+    """:func:`poisson` at depths 7 and 8, the one with the lower CD against ``source``.
+
+    Returns
+    -------
+    depth, mesh, scores (:func:`voro3d.metrics.evaluate`), seconds, orientation
+    """
+    from voro3d.metrics import evaluate
+
+    meshes_by_depth, orientation = poisson(points, colours)
+    tried = {depth: (evaluate(mesh, source), mesh, seconds) for depth, (mesh, seconds) in meshes_by_depth.items()}
+    depth = min(tried, key=lambda d: tried[d][0]["chamfer_x1e5"])
+    scores, mesh, seconds = tried[depth]
+    return depth, mesh, scores, seconds, orientation
+
+
 def _pieces(mesh) -> int:
     return int(len(np.unique(np.asarray(mesh.cluster_connected_triangles()[0]))))
 
@@ -194,10 +210,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
         meshes = {}
     if not with_poisson:
         return dict(row, poisson={})
-    meshes_by_depth, orientation = poisson(points, colours)
-    tried = {depth: (evaluate(mesh, source), mesh, seconds) for depth, (mesh, seconds) in meshes_by_depth.items()}
-    depth = min(tried, key=lambda d: tried[d][0]["chamfer_x1e5"])
-    scores, mesh, seconds = tried[depth]
+    depth, mesh, scores, seconds, orientation = best_poisson(points, source, colours)
     row["poisson"] = dict(scores, seconds=seconds, depth=depth, pieces=_pieces(mesh), orientation=orientation,
                           closed=bool(mesh.is_edge_manifold() and mesh.is_watertight()))
     if colours is not None:
