@@ -32,6 +32,8 @@ __all__ = ["SAMPLE_BITS", "SDF_LEVELS", "pack_dataset", "pack_shape", "unpack_da
 SDF_LEVELS = 512
 # Bits per coordinate of a packed sample in [-1, 1]: a step of 4.9e-4, 1/65 of a 64^3 voxel.
 SAMPLE_BITS = 12
+# A packed sample coordinate is round((x + 1) * _SAMPLE_SCALE).
+_SAMPLE_SCALE = (2**SAMPLE_BITS - 1) / 2.0
 _PRESET = 9 | lzma.PRESET_EXTREME
 
 
@@ -71,8 +73,7 @@ def pack_shape(record: dict, *, n_samples: int, clip: float = 3.25, seed: int = 
         packed[name] = _compress(np.diff(levels, axis=2, prepend=0).astype(np.int16))
     samples = record["samples"]
     keep = np.random.default_rng(seed).permutation(samples.shape[0])[:n_samples]
-    scale = (2**SAMPLE_BITS - 1) / 2.0
-    quantised = np.round((np.clip(samples[keep], -1.0, 1.0) + 1.0) * scale).astype(np.int32)
+    quantised = np.round((np.clip(samples[keep], -1.0, 1.0) + 1.0) * _SAMPLE_SCALE).astype(np.int32)
     cell = quantised >> (SAMPLE_BITS - 6)
     quantised = quantised[np.argsort((cell[:, 0] * 64 + cell[:, 1]) * 64 + cell[:, 2], kind="stable")]
     packed["samples"] = _compress(np.diff(quantised, axis=0, prepend=0).astype(np.int16).T)
@@ -90,7 +91,7 @@ def unpack_shape(packed: dict) -> dict:
         record[name] = (np.clip(levels / SDF_LEVELS, -clip, clip) * (2.0 / (g - 1))).astype(np.float32)
     n = int(packed["n_samples"])
     quantised = np.cumsum(_decompress(packed["samples"], np.int16, (3, n)).T, axis=0, dtype=np.int32)
-    record["samples"] = (quantised / ((2**SAMPLE_BITS - 1) / 2.0) - 1.0).astype(np.float32)
+    record["samples"] = (quantised / _SAMPLE_SCALE - 1.0).astype(np.float32)
     return record
 
 
@@ -140,9 +141,12 @@ def unpack_dataset(pack_path, out_dir) -> list[Path]:
     files = []
     with np.load(pack_path) as data:
         spec = json.loads(data["index"].tobytes().decode())
+        keys = {}  # file stem -> its packed array names
+        for key in data.files:
+            if "/" in key:
+                keys.setdefault(key.split("/", 1)[0], []).append(key)
         for name in spec["files"]:
-            stem = Path(name).stem
-            packed = {key.split("/", 1)[1]: data[key] for key in data.files if key.startswith(stem + "/")}
+            packed = {key.split("/", 1)[1]: data[key] for key in keys[Path(name).stem]}
             target = out_dir / name
             with atomic_path(target, suffix=".npz") as tmp:
                 np.savez(tmp, **unpack_shape(packed))
