@@ -88,7 +88,7 @@ py::tuple delaunay_tetrahedra(const py::object& points_in) {
   return py::make_tuple(to_array(cells, 4), to_array(cospherical, 2));
 }
 
-// Circumcentres with exact constructions, rounded to double: for slivers, whose
+// Circumcentres with exact constructions, rounded to double: for tetrahedra whose
 // floating-point circumcentre is ill-conditioned.
 py::array_t<double> exact_circumcenters(const py::object& points_in, const py::object& tets_in) {
   using Exact = CGAL::Exact_predicates_exact_constructions_kernel;
@@ -113,9 +113,11 @@ py::array_t<double> exact_circumcenters(const py::object& points_in, const py::o
         break;
       }
       const auto centre = CGAL::circumcenter(corner[0], corner[1], corner[2], corner[3]);
-      out(c, 0) = CGAL::to_double(centre.x());
-      out(c, 1) = CGAL::to_double(centre.y());
-      out(c, 2) = CGAL::to_double(centre.z());
+      // exact() first: a lazy number's to_double stops refining at a relative precision of
+      // 1e-5 of its interval, which left thin-cell vertices 1e-11 off and their faces crossing.
+      out(c, 0) = CGAL::to_double(CGAL::exact(centre.x()));
+      out(c, 1) = CGAL::to_double(CGAL::exact(centre.y()));
+      out(c, 2) = CGAL::to_double(CGAL::exact(centre.z()));
     }
   }
   if (flat >= 0) {

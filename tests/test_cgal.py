@@ -26,6 +26,56 @@ def test_exact_circumcenters_are_equidistant():
     np.testing.assert_allclose(distances, distances[:, :1].repeat(4, axis=1), rtol=1e-9)
 
 
+def rational_circumcenter(corners):
+    """The circumcentre of four float corners in exact rational arithmetic."""
+    from fractions import Fraction
+
+    a, *others = [[Fraction(float(x)) for x in corner] for corner in corners]
+    u, v, w = ([p[k] - a[k] for k in range(3)] for p in others)
+
+    def cross(x, y):
+        return [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]]
+
+    def dot(x, y):
+        return sum(p * q for p, q in zip(x, y))
+
+    vw, wu, uv = cross(v, w), cross(w, u), cross(u, v)
+    det = dot(u, vw)
+    return [a[k] + (dot(u, u) * vw[k] + dot(v, v) * wu[k] + dot(w, w) * uv[k]) / (2 * det) for k in range(3)]
+
+
+def clustered_points():
+    """Clusters of three generators 1e-6 apart among spread ones: the test suite's case whose
+    thin cells' faces crossed while their vertices were 1e-11 off."""
+    rng = np.random.default_rng(106764551)
+    base = rng.uniform(-1, 1, (98, 3))
+    source = np.repeat(np.arange(32), 3)
+    return np.vstack([base, base[source] + rng.normal(size=(source.size, 3)) * 1e-6])
+
+
+def test_exact_circumcenters_are_the_rational_ones_rounded():
+    points = clustered_points()
+    tets, _ = _cgal.delaunay_tetrahedra(points)
+    # Tetrahedra with a cluster edge are the ill-conditioned ones.
+    edges = np.linalg.norm(points[tets][:, :, None] - points[tets][:, None], axis=3)
+    picked = tets[np.flatnonzero((edges + np.eye(4) > 1e-5).sum(axis=(1, 2)) < 12)[:20]]
+    assert len(picked) == 20
+    centres = _cgal.exact_circumcenters(points, picked)
+    for corners, centre in zip(points[picked], centres):
+        exact = rational_circumcenter(corners)
+        assert all(abs(centre[k] - float(exact[k])) <= np.spacing(abs(float(exact[k]))) for k in range(3))
+
+
+def test_circumcenters_of_clustered_generators_are_accurate():
+    from voro3d.delaunay import circumcenters
+
+    points = clustered_points()
+    tets, _ = _cgal.delaunay_tetrahedra(points)
+    centres = circumcenters(points, tets)
+    exact = _cgal.exact_circumcenters(points, tets)
+    assert np.abs(centres - exact).max() <= 1e-14 * np.ptp(points, axis=0).max()
+
+
 @pytest.mark.parametrize("points, error, match", [
     (np.zeros((5, 2)), ValueError, r"points must have shape \(n, 3\), got \(5, 2\)"),
     (np.zeros(3), ValueError, r"points must have shape \(n, 3\), got \(3,\)"),
