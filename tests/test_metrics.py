@@ -125,11 +125,19 @@ def test_triangle_quality():
     """An octahedron judged against itself: nothing off-normal; a flattened one has slivers."""
     vertices = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
     triangles = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
-    assert triangle_quality((vertices, triangles), (vertices, triangles)) == {"off_normal_share": 0.0,
-                                                                              "sliver_share": 0.0}
+    assert triangle_quality((vertices, triangles), (vertices, triangles)) == {
+        "off_normal_share": 0.0, "sliver_share": 0.0, "off_normal_area_share": 0.0}
     flat = vertices * [1, 1, 0.01]
     quality = triangle_quality((flat, triangles), (vertices, triangles))
-    assert quality["sliver_share"] == 0.0 and quality["off_normal_share"] == 1.0
+    assert quality["sliver_share"] == 0.0 and quality["off_normal_share"] == quality["off_normal_area_share"] == 1.0
+    # The top apex raised to z = 10: its four faces (area |(10, 10, 1)| / 2 each) are turned 31 degrees
+    # or more from the octahedron's, the bottom four (area sqrt(3) / 2) are its own.
+    spire = vertices.copy()
+    spire[4, 2] = 10
+    quality = triangle_quality((spire, triangles), (vertices, triangles))
+    top = np.sqrt(201) / 2
+    assert quality["off_normal_share"] == 0.5
+    assert quality["off_normal_area_share"] == pytest.approx(top / (top + np.sqrt(3) / 2))
     needle = vertices * [1, 0.02, 0.02]
     assert triangle_quality((needle, triangles), (needle, triangles))["sliver_share"] == 1.0
 

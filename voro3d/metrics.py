@@ -105,6 +105,9 @@ def triangle_quality(pred, gt, *, max_angle: float = 30.0, sliver_angle: float =
     -------
     dict
         ``off_normal_share``, ``sliver_share`` : float -- fractions of ``pred``'s triangles.
+        ``off_normal_area_share`` : float -- fraction of ``pred``'s area that is off-normal: what
+        the eye sees, where a count favours surfaces with many small triangles where they are right
+        (Poisson's octree is fine near the points and coarse across a filled hole).
 
     Raises
     ------
@@ -138,4 +141,5 @@ def triangle_quality(pred, gt, *, max_angle: float = 30.0, sliver_angle: float =
         with np.errstate(invalid="ignore", divide="ignore"):
             angle = np.degrees(np.arccos(np.clip((b**2 + c**2 - a**2) / (2 * b * c), -1, 1)))
         smallest = np.minimum(smallest, np.nan_to_num(angle, nan=0.0))
-    return {"off_normal_share": float(off.mean()), "sliver_share": float((smallest < sliver_angle).mean())}
+    return {"off_normal_share": float(off.mean()), "sliver_share": float((smallest < sliver_angle).mean()),
+            "off_normal_area_share": float(length[off].sum() / length.sum()) if length.sum() > 0 else 1.0}
