@@ -142,10 +142,11 @@ double graph_gap(Patch& patch) {
       const double l2 = ((x[t[1]] - ax) * (v - ay) - (u - ax) * (y[t[1]] - ay)) / det;
       const double l0 = 1 - l1 - l2;
       const double inside = std::min({l0, l1, l2});
-      if (inside > best) {
-        best = inside;
-        value = l0 * z[t[0]] + l1 * z[t[1]] + l2 * z[t[2]];
-      }
+      // Selected without a branch, as the crossings below.
+      const bool better = inside > best;
+      const double here = l0 * z[t[0]] + l1 * z[t[1]] + l2 * z[t[2]];
+      best = better ? inside : best;
+      value = better ? here : value;
     }
     return best >= -1e-9 ? value : NAN;
   };
@@ -804,6 +805,10 @@ Mesh mesh_of(const voro3d::Points& vertices, const voro3d::Indices& triangles) {
                           std::to_string(triangles.shape(0)));
   }
   Mesh mesh;
+  // Room for every element first: the property arrays then grow without copies (a closed surface
+  // of t triangles has 3t/2 edges).
+  mesh.reserve(static_cast<Mesh::size_type>(v.shape(0)), static_cast<Mesh::size_type>(3 * t.shape(0) / 2),
+               static_cast<Mesh::size_type>(t.shape(0)));
   for (py::ssize_t i = 0; i < v.shape(0); ++i) mesh.add_vertex(Point(v(i, 0), v(i, 1), v(i, 2)));
   for (py::ssize_t i = 0; i < t.shape(0); ++i) {
     if (mesh.add_face(Vertex(t(i, 0)), Vertex(t(i, 1)), Vertex(t(i, 2))) == Mesh::null_face()) {
