@@ -281,10 +281,15 @@ struct State {
   double accepted_volume = 0;
   Merges merges;
   CleanLog* log = nullptr;
-  // Workspace of bound_collapse.
+  // Workspace of bound_collapse (the patch: of bound_flip too).
   Patch patch;
-  std::vector<Vertex> local;
-  std::vector<Face> seen, kept;
+  // A vertex's local index is local_index[v] while local_stamp[v] is patch_stamp, and a face was
+  // seen while face_stamp[f] is: searching the patch's lists instead mispredicted where each
+  // search ended, a third of the mispredicted branches of a clean.
+  std::vector<std::uint32_t> local_stamp, face_stamp;
+  std::vector<int> local_index;
+  std::uint32_t patch_stamp = 0;
+  std::vector<Face> kept;
   std::vector<double> old_bound, shifted;
   std::vector<int> by_bound;
   std::vector<std::pair<int, double>> removed;  // third vertex and bound of the two faces on the edge
@@ -314,29 +319,30 @@ struct State {
 bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const Point& placement) {
   if ((*state->frozen)[v0.idx()] || (*state->frozen)[v1.idx()]) return false;
   Patch& patch = state->patch;
-  auto& local = state->local;
-  auto& seen = state->seen;
   auto& kept = state->kept;
   auto& old_bound = state->old_bound;
   auto& shifted = state->shifted;
   auto& removed = state->removed;
   patch.clear();
-  local.clear();
-  seen.clear();
   kept.clear();
   old_bound.clear();
   shifted.clear();
   removed.clear();
+  if (++state->patch_stamp == 0) {
+    std::fill(state->local_stamp.begin(), state->local_stamp.end(), 0);
+    std::fill(state->face_stamp.begin(), state->face_stamp.end(), 0);
+    state->patch_stamp = 1;
+  }
+  const std::uint32_t stamp = state->patch_stamp;
   auto index = [&](Vertex v) {
-    const auto found = std::find(local.begin(), local.end(), v);
-    if (found != local.end()) return static_cast<int>(found - local.begin());
-    local.push_back(v);
+    if (state->local_stamp[v.idx()] == stamp) return state->local_index[v.idx()];
+    state->local_stamp[v.idx()] = stamp;
+    state->local_index[v.idx()] = static_cast<int>(patch.points.size());
     patch.points.push_back(mesh.point(v));
-    return static_cast<int>(local.size() - 1);
+    return static_cast<int>(patch.points.size() - 1);
   };
   const int i0 = index(v0), i1 = index(v1);
   const int ip = static_cast<int>(patch.points.size());
-  local.push_back(Mesh::null_vertex());
   patch.points.push_back(placement);
   const double shift[2] = {std::sqrt(CGAL::squared_distance(mesh.point(v0), placement)),
                            std::sqrt(CGAL::squared_distance(mesh.point(v1), placement))};
@@ -344,8 +350,8 @@ bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const 
   for (const Vertex centre : {v0, v1}) {
     for (const auto h : mesh.halfedges_around_target(mesh.halfedge(centre))) {
       const Face f = mesh.face(h);
-      if (std::find(seen.begin(), seen.end(), f) != seen.end()) continue;
-      seen.push_back(f);
+      if (state->face_stamp[f.idx()] == stamp) continue;
+      state->face_stamp[f.idx()] = stamp;
       old_bound.push_back(state->bound[f]);
       Triangle t;
       int k = 0, moved = 0;
@@ -664,7 +670,7 @@ double smallest_angle_cosine(const Point& a, const Point& b, const Point& c) {
 // Whether flipping the edge of `h` raises the smallest angle of its two triangles by more than
 // `margin` radians with the new pair within max_distance and the volume budget (see the top of the
 // file); its new faces' bound and the volume change into `bound` and `volume`.
-bool bound_flip(const Mesh& mesh, const State& state, Mesh::Halfedge_index h, double margin, double& bound,
+bool bound_flip(const Mesh& mesh, State& state, Mesh::Halfedge_index h, double margin, double& bound,
                 double& volume) {
   const auto o = mesh.opposite(h);
   const Vertex s = mesh.source(h), t = mesh.target(h);
@@ -677,7 +683,15 @@ bool bound_flip(const Mesh& mesh, const State& state, Mesh::Halfedge_index h, do
   const double new_cosine = std::max(smallest_angle_cosine(pa, ps, pb), smallest_angle_cosine(pb, pt, pa));
   if (!(new_cosine < old_cosine && std::acos(new_cosine) > std::acos(old_cosine) + margin)) return false;
   if (mesh.halfedge(a, b) != Mesh::null_halfedge()) return false;
-  Patch patch{{ps, pt, pa, pb}, {{0, 1, 2}, {1, 0, 3}}, {{2, 0, 3}, {3, 1, 2}}, {}, {}, {{0, 1}}, {{2, 3}}};
+  // In the workspace of bound_collapse: a Patch of its own would allocate ten arrays a flip.
+  Patch& patch = state.patch;
+  patch.points.assign({ps, pt, pa, pb});
+  patch.before.assign({{0, 1, 2}, {1, 0, 3}});
+  patch.after.assign({{2, 0, 3}, {3, 1, 2}});
+  patch.inner_before.clear();
+  patch.inner_after.clear();
+  patch.edges_before.assign({{0, 1}});
+  patch.edges_after.assign({{2, 3}});
   const double gap = graph_gap(patch);
   bound = gap + std::max(state.bound[mesh.face(h)], state.bound[mesh.face(o)]);
   volume = CGAL::determinant(pb - ps, pt - ps, pa - ps) / 6;  // the old faces both hold s
@@ -855,6 +869,9 @@ State state_of(Mesh& mesh, const std::vector<char>& frozen, double max_distance,
               max_volume_change};
   state.merges.parent.resize(frozen.size());
   state.mark.assign(frozen.size(), 0);
+  state.local_stamp.assign(frozen.size(), 0);
+  state.local_index.assign(frozen.size(), 0);
+  state.face_stamp.assign(mesh.num_faces(), 0);
   for (std::size_t i = 0; i < frozen.size(); ++i) state.merges.parent[i] = static_cast<std::int64_t>(i);
   return state;
 }
