@@ -89,7 +89,11 @@ struct Patch {
   // triangles run it in opposite directions, one of them from the smaller index).
   static void edges_at(const std::vector<Triangle>& triangles, const std::vector<int>& inner,
                        std::vector<std::pair<int, int>>& edges) {
-    auto is_inner = [&](int v) { return std::find(inner.begin(), inner.end(), v) != inner.end(); };
+    auto is_inner = [&](int v) {  // one or two of them: compared with each, not searched
+      bool found = false;
+      for (const int w : inner) found |= v == w;
+      return found;
+    };
     for (const auto& t : triangles) {
       for (int k = 0; k < 3; ++k) {
         const int a = t[k], b = t[(k + 1) % 3];
@@ -200,8 +204,8 @@ double graph_gap(Patch& patch) {
       const double t = ((x[c] - x[a]) * ry - (y[c] - y[a]) * rx) / den;
       const bool crossing = (a != c) & (a != d) & (b != c) & (b != d) & (den != 0) &
                             !((s < 0) | (s > 1) | (t < 0) | (t > 1));
-      const double here = std::abs((z[a] + s * (z[b] - z[a])) - (z[c] + t * (z[d] - z[c])));
-      gap = std::max(gap, crossing ? here : 0.0);
+      const double here[2] = {0.0, std::abs((z[a] + s * (z[b] - z[a])) - (z[c] + t * (z[d] - z[c])))};
+      gap = std::max(gap, here[crossing]);
     }
   }
   return gap;
