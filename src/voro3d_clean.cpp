@@ -216,17 +216,18 @@ double graph_gap(Patch& patch) {
 bool overlap(const Patch& patch, const Triangle& p, const Triangle& q) {
   const auto& x = patch.x;
   const auto& y = patch.y;
+  // Every edge tested, without a branch: whether one separates is unpredictable.
   auto separates = [&](const Triangle& a, const Triangle& b) {
+    bool found = false;
     for (int k = 0; k < 3; ++k) {
       const int i = a[k], j = a[(k + 1) % 3], o = a[(k + 2) % 3];
       auto side = [&](int w) { return (x[j] - x[i]) * (y[w] - y[i]) - (y[j] - y[i]) * (x[w] - x[i]); };
       const double own = side(o);
-      if (own == 0) continue;
-      if (std::all_of(b.begin(), b.end(), [&](int w) { return side(w) * own < 0; })) return true;
+      found |= (own != 0) & (side(b[0]) * own < 0) & (side(b[1]) * own < 0) & (side(b[2]) * own < 0);
     }
-    return false;
+    return found;
   };
-  return !separates(p, q) && !separates(q, p);
+  return !(separates(p, q) | separates(q, p));
 }
 
 // Union-find over input vertex indices: parent[v] is the vertex v was merged into.
