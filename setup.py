@@ -10,7 +10,8 @@ setup(
             depends=["src/voro3d_checks.h"],
             cxx_std=17,
             define_macros=[("NDEBUG", None), ("CGAL_DISABLE_ROUNDING_MATH_CHECK", None)],
-            extra_compile_args=["-O3"],
+            extra_compile_args=["-O3", "-pthread"],
+            extra_link_args=["-pthread"],
             libraries=["gmp", "mpfr"],
         ),
         Pybind11Extension(

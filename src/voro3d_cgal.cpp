@@ -19,6 +19,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <future>
 #include <string>
 #include <utility>
 #include <vector>
@@ -160,14 +161,64 @@ bool meet(const Piece& p, const Piece& q) {
     default: return p.a == q.a;
   }
 }
+
+using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::size_t>;
+using Boxes = std::vector<Box>;
+
+// Below this many triangles one thread does it all: a thread's start would not pay.
+constexpr std::size_t kParallelBoxes = 2048;
+
+// Box intersections to run: each box range against itself, and each pair of ranges against each
+// other (the first range's boxes first in the callback).
+struct BoxPart {
+  std::vector<Boxes*> self;
+  std::vector<std::pair<Boxes*, Boxes*>> between;
+};
+
+// The box pairs of a self-intersection test (or of changed boxes against all) in two parts of
+// about equal work, for two threads. A box goes to the lower or the upper side of the plane
+// x = m through the median of the boxes' lower x, by its lower x; two boxes on different sides
+// meet only if the lower one reaches m, and few do (the plane crosses a surface along a curve).
+// So part 0 is the lower side against itself and part 1 the upper side against itself and
+// against the lower boxes that reach it: every meeting pair is in exactly one part, once.
+struct BoxSplit {
+  Boxes lower, upper, reaching;                         // all boxes, by side
+  Boxes changed_lower, changed_upper, changed_reaching;  // changed boxes, by side
+  BoxPart parts[2];
+
+  BoxSplit(const Boxes& boxes, const Boxes* changed) {
+    std::vector<double> low(boxes.size());
+    for (std::size_t i = 0; i < boxes.size(); ++i) low[i] = boxes[i].min_coord(0);
+    std::nth_element(low.begin(), low.begin() + low.size() / 2, low.end());
+    const double m = low[low.size() / 2];
+    auto divide = [m](const Boxes& in, Boxes& below, Boxes& above, Boxes& reach) {
+      for (const auto& box : in) {
+        (box.min_coord(0) < m ? below : above).push_back(box);
+        if (box.min_coord(0) < m && box.max_coord(0) >= m) reach.push_back(box);
+      }
+    };
+    divide(boxes, lower, upper, reaching);
+    if (!changed) {
+      parts[0].self = {&lower};
+      parts[1].self = {&upper};
+      parts[1].between = {{&reaching, &upper}};
+      return;
+    }
+    divide(*changed, changed_lower, changed_upper, changed_reaching);
+    parts[0].between = {{&changed_lower, &lower}};
+    parts[1].between = {{&changed_upper, &upper}, {&changed_reaching, &upper}, {&changed_upper, &reaching}};
+  }
+};
 }  // namespace
 
 // Pairs (i < j) of triangles that share no vertex index and whose closed point sets intersect,
 // decided exactly. Candidates are the pairs whose bounding boxes meet (CGAL's box intersection,
 // Zomorodian and Edelsbrunner), so the cost follows the number of nearby pairs, not its square.
 // With `changed`, a (t,) bool mask, only the pairs with at least one changed triangle are tested.
+// With `parallel`, from kParallelBoxes triangles on, the work is split over two threads (see
+// split_box_pairs); the pairs are sorted, so the answer is the serial one.
 py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in, const py::object& triangles_in,
-                                                  const py::object& changed_in) {
+                                                  const py::object& changed_in, bool parallel) {
   Points vertices = check_points(vertices_in, "vertices", 0);
   Indices triangles = check_indices(triangles_in, "triangles", 3, "t", vertices.shape(0), "vertices");
   std::vector<char> changed;
@@ -185,7 +236,6 @@ py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in,
     std::vector<Point> points;
     points.reserve(static_cast<std::size_t>(v.shape(0)));
     for (py::ssize_t i = 0; i < v.shape(0); ++i) points.emplace_back(v(i, 0), v(i, 1), v(i, 2));
-    using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::size_t>;
     std::vector<Piece> pieces;
     std::vector<Box> boxes;
     pieces.reserve(f);
@@ -205,31 +255,55 @@ py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in,
       }
       return false;
     };
-    auto test = [&](const Box& x, const Box& y) {
-      const std::size_t i = std::min(x.info(), y.info());
-      const std::size_t j = std::max(x.info(), y.info());
-      if (!shares_index(i, j) && meet(pieces[i], pieces[j])) {
-        pairs.push_back(static_cast<std::int64_t>(i));
-        pairs.push_back(static_cast<std::int64_t>(j));
+    // The pairs of one part of the work, into `found` (each thread has its own).
+    auto search = [&](const BoxPart& part, std::vector<std::int64_t>& found) {
+      auto test = [&](const Box& x, const Box& y) {
+        const std::size_t i = std::min(x.info(), y.info());
+        const std::size_t j = std::max(x.info(), y.info());
+        if (!shares_index(i, j) && meet(pieces[i], pieces[j])) {
+          found.push_back(static_cast<std::int64_t>(i));
+          found.push_back(static_cast<std::int64_t>(j));
+        }
+      };
+      // Closed boxes: boxes that only touch are candidates too.
+      if (changed.empty()) {
+        for (auto* self : part.self) CGAL::box_self_intersection_d(self->begin(), self->end(), test);
+        for (const auto& [x, y] : part.between) CGAL::box_intersection_d(x->begin(), x->end(), y->begin(), y->end(), test);
+        return;
       }
-    };
-    // Closed boxes: boxes that only touch are candidates too.
-    if (changed.empty()) {
-      CGAL::box_self_intersection_d(boxes.begin(), boxes.end(), test);
-    } else {
       // Changed boxes against all: a pair of two changed triangles comes once from each side and
       // is kept from the side of its smaller index.
-      std::vector<Box> changed_boxes;
+      for (const auto& [x, y] : part.between) {
+        CGAL::box_intersection_d(x->begin(), x->end(), y->begin(), y->end(), [&](const Box& a, const Box& b) {
+          if (a.info() == b.info() || (changed[b.info()] && b.info() < a.info())) return;
+          test(a, b);
+        });
+      }
+    };
+    std::vector<Box> changed_boxes;
+    if (!changed.empty()) {
       for (const auto& box : boxes) {
         if (changed[box.info()]) changed_boxes.push_back(box);
       }
-      CGAL::box_intersection_d(changed_boxes.begin(), changed_boxes.end(), boxes.begin(), boxes.end(),
-                               [&](const Box& x, const Box& y) {
-                                 if (x.info() == y.info() || (changed[y.info()] && y.info() < x.info())) return;
-                                 test(x, y);
-                               });
     }
-    // Sorted, so that the order does not depend on how the box intersection split its work.
+    if (parallel && f >= kParallelBoxes) {
+      BoxSplit split(boxes, changed.empty() ? nullptr : &changed_boxes);
+      std::vector<std::int64_t> other;
+      auto lower = std::async(std::launch::async, [&] { search(split.parts[0], other); });
+      search(split.parts[1], pairs);
+      lower.get();
+      pairs.insert(pairs.end(), other.begin(), other.end());
+    } else {
+      BoxPart whole;
+      if (changed.empty()) {
+        whole.self.push_back(&boxes);
+      } else {
+        whole.between.emplace_back(&changed_boxes, &boxes);
+      }
+      search(whole, pairs);
+    }
+    // Sorted, so that the order depends neither on how the box intersection split its work nor
+    // on the threads.
     std::vector<std::pair<std::int64_t, std::int64_t>> sorted(pairs.size() / 2);
     for (std::size_t k = 0; k < sorted.size(); ++k) sorted[k] = {pairs[2 * k], pairs[2 * k + 1]};
     std::sort(sorted.begin(), sorted.end());
@@ -255,9 +329,9 @@ PYBIND11_MODULE(_cgal, module) {
              "Circumcentres (m, 3) of the (m, 4) tets indexing finite (n, 3) points, computed exactly, "
              "rounded to float64. Flat tets are a ValueError.");
   module.def("self_intersecting_pairs", &self_intersecting_pairs, py::arg("vertices"), py::arg("triangles"),
-             py::arg("changed") = py::none(),
+             py::arg("changed") = py::none(), py::arg("parallel") = true,
              "(p, 2) int64 sorted pairs i < j of the (t, 3) triangles over finite (n, 3) vertices that share "
              "no vertex index and intersect, touching included, decided with exact predicates; collinear "
              "triangles count as their segment. With changed, a (t,) bool mask, only the pairs holding a "
-             "changed triangle.");
+             "changed triangle. With parallel, large meshes are split over two threads (the same pairs).");
 }

@@ -89,7 +89,11 @@ struct Patch {
   // triangles run it in opposite directions, one of them from the smaller index).
   static void edges_at(const std::vector<Triangle>& triangles, const std::vector<int>& inner,
                        std::vector<std::pair<int, int>>& edges) {
-    auto is_inner = [&](int v) { return std::find(inner.begin(), inner.end(), v) != inner.end(); };
+    auto is_inner = [&](int v) {  // one or two of them: compared with each, not searched
+      bool found = false;
+      for (const int w : inner) found |= v == w;
+      return found;
+    };
     for (const auto& t : triangles) {
       for (int k = 0; k < 3; ++k) {
         const int a = t[k], b = t[(k + 1) % 3];
@@ -142,10 +146,11 @@ double graph_gap(Patch& patch) {
       const double l2 = ((x[t[1]] - ax) * (v - ay) - (u - ax) * (y[t[1]] - ay)) / det;
       const double l0 = 1 - l1 - l2;
       const double inside = std::min({l0, l1, l2});
-      if (inside > best) {
-        best = inside;
-        value = l0 * z[t[0]] + l1 * z[t[1]] + l2 * z[t[2]];
-      }
+      // Selected without a branch, as the crossings below.
+      const bool better = inside > best;
+      const double here = l0 * z[t[0]] + l1 * z[t[1]] + l2 * z[t[2]];
+      best = better ? inside : best;
+      value = better ? here : value;
     }
     return best >= -1e-9 ? value : NAN;
   };
@@ -187,16 +192,20 @@ double graph_gap(Patch& patch) {
     if (std::isnan(h)) return -1;
     gap = std::max(gap, std::abs(h - z[w]));
   }
+  // Every pair of edges is computed and its gap kept where they cross, without a branch: which
+  // pairs cross is unpredictable, and the mispredicted branches took more time than the divisions
+  // (half of this function's, 80 pairs a collapse).
   for (const auto& [a, b] : edges_before) {
+    const double rx = x[b] - x[a], ry = y[b] - y[a];
     for (const auto& [c, d] : edges_after) {
-      if (a == c || a == d || b == c || b == d) continue;
-      const double rx = x[b] - x[a], ry = y[b] - y[a], sx = x[d] - x[c], sy = y[d] - y[c];
+      const double sx = x[d] - x[c], sy = y[d] - y[c];
       const double den = rx * sy - ry * sx;
-      if (den == 0) continue;
       const double s = ((x[c] - x[a]) * sy - (y[c] - y[a]) * sx) / den;
       const double t = ((x[c] - x[a]) * ry - (y[c] - y[a]) * rx) / den;
-      if (s < 0 || s > 1 || t < 0 || t > 1) continue;
-      gap = std::max(gap, std::abs((z[a] + s * (z[b] - z[a])) - (z[c] + t * (z[d] - z[c]))));
+      const bool crossing = (a != c) & (a != d) & (b != c) & (b != d) & (den != 0) &
+                            !((s < 0) | (s > 1) | (t < 0) | (t > 1));
+      const double here[2] = {0.0, std::abs((z[a] + s * (z[b] - z[a])) - (z[c] + t * (z[d] - z[c])))};
+      gap = std::max(gap, here[crossing]);
     }
   }
   return gap;
@@ -207,17 +216,18 @@ double graph_gap(Patch& patch) {
 bool overlap(const Patch& patch, const Triangle& p, const Triangle& q) {
   const auto& x = patch.x;
   const auto& y = patch.y;
+  // Every edge tested, without a branch: whether one separates is unpredictable.
   auto separates = [&](const Triangle& a, const Triangle& b) {
+    bool found = false;
     for (int k = 0; k < 3; ++k) {
       const int i = a[k], j = a[(k + 1) % 3], o = a[(k + 2) % 3];
       auto side = [&](int w) { return (x[j] - x[i]) * (y[w] - y[i]) - (y[j] - y[i]) * (x[w] - x[i]); };
       const double own = side(o);
-      if (own == 0) continue;
-      if (std::all_of(b.begin(), b.end(), [&](int w) { return side(w) * own < 0; })) return true;
+      found |= (own != 0) & (side(b[0]) * own < 0) & (side(b[1]) * own < 0) & (side(b[2]) * own < 0);
     }
-    return false;
+    return found;
   };
-  return !separates(p, q) && !separates(q, p);
+  return !(separates(p, q) | separates(q, p));
 }
 
 // Union-find over input vertex indices: parent[v] is the vertex v was merged into.
@@ -276,10 +286,15 @@ struct State {
   double accepted_volume = 0;
   Merges merges;
   CleanLog* log = nullptr;
-  // Workspace of bound_collapse.
+  // Workspace of bound_collapse (the patch: of bound_flip too).
   Patch patch;
-  std::vector<Vertex> local;
-  std::vector<Face> seen, kept;
+  // A vertex's local index is local_index[v] while local_stamp[v] is patch_stamp, and a face was
+  // seen while face_stamp[f] is: searching the patch's lists instead mispredicted where each
+  // search ended, a third of the mispredicted branches of a clean.
+  std::vector<std::uint32_t> local_stamp, face_stamp;
+  std::vector<int> local_index;
+  std::uint32_t patch_stamp = 0;
+  std::vector<Face> kept;
   std::vector<double> old_bound, shifted;
   std::vector<int> by_bound;
   std::vector<std::pair<int, double>> removed;  // third vertex and bound of the two faces on the edge
@@ -309,29 +324,30 @@ struct State {
 bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const Point& placement) {
   if ((*state->frozen)[v0.idx()] || (*state->frozen)[v1.idx()]) return false;
   Patch& patch = state->patch;
-  auto& local = state->local;
-  auto& seen = state->seen;
   auto& kept = state->kept;
   auto& old_bound = state->old_bound;
   auto& shifted = state->shifted;
   auto& removed = state->removed;
   patch.clear();
-  local.clear();
-  seen.clear();
   kept.clear();
   old_bound.clear();
   shifted.clear();
   removed.clear();
+  if (++state->patch_stamp == 0) {
+    std::fill(state->local_stamp.begin(), state->local_stamp.end(), 0);
+    std::fill(state->face_stamp.begin(), state->face_stamp.end(), 0);
+    state->patch_stamp = 1;
+  }
+  const std::uint32_t stamp = state->patch_stamp;
   auto index = [&](Vertex v) {
-    const auto found = std::find(local.begin(), local.end(), v);
-    if (found != local.end()) return static_cast<int>(found - local.begin());
-    local.push_back(v);
+    if (state->local_stamp[v.idx()] == stamp) return state->local_index[v.idx()];
+    state->local_stamp[v.idx()] = stamp;
+    state->local_index[v.idx()] = static_cast<int>(patch.points.size());
     patch.points.push_back(mesh.point(v));
-    return static_cast<int>(local.size() - 1);
+    return static_cast<int>(patch.points.size() - 1);
   };
   const int i0 = index(v0), i1 = index(v1);
   const int ip = static_cast<int>(patch.points.size());
-  local.push_back(Mesh::null_vertex());
   patch.points.push_back(placement);
   const double shift[2] = {std::sqrt(CGAL::squared_distance(mesh.point(v0), placement)),
                            std::sqrt(CGAL::squared_distance(mesh.point(v1), placement))};
@@ -339,8 +355,8 @@ bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const 
   for (const Vertex centre : {v0, v1}) {
     for (const auto h : mesh.halfedges_around_target(mesh.halfedge(centre))) {
       const Face f = mesh.face(h);
-      if (std::find(seen.begin(), seen.end(), f) != seen.end()) continue;
-      seen.push_back(f);
+      if (state->face_stamp[f.idx()] == stamp) continue;
+      state->face_stamp[f.idx()] = stamp;
       old_bound.push_back(state->bound[f]);
       Triangle t;
       int k = 0, moved = 0;
@@ -659,7 +675,7 @@ double smallest_angle_cosine(const Point& a, const Point& b, const Point& c) {
 // Whether flipping the edge of `h` raises the smallest angle of its two triangles by more than
 // `margin` radians with the new pair within max_distance and the volume budget (see the top of the
 // file); its new faces' bound and the volume change into `bound` and `volume`.
-bool bound_flip(const Mesh& mesh, const State& state, Mesh::Halfedge_index h, double margin, double& bound,
+bool bound_flip(const Mesh& mesh, State& state, Mesh::Halfedge_index h, double margin, double& bound,
                 double& volume) {
   const auto o = mesh.opposite(h);
   const Vertex s = mesh.source(h), t = mesh.target(h);
@@ -672,7 +688,15 @@ bool bound_flip(const Mesh& mesh, const State& state, Mesh::Halfedge_index h, do
   const double new_cosine = std::max(smallest_angle_cosine(pa, ps, pb), smallest_angle_cosine(pb, pt, pa));
   if (!(new_cosine < old_cosine && std::acos(new_cosine) > std::acos(old_cosine) + margin)) return false;
   if (mesh.halfedge(a, b) != Mesh::null_halfedge()) return false;
-  Patch patch{{ps, pt, pa, pb}, {{0, 1, 2}, {1, 0, 3}}, {{2, 0, 3}, {3, 1, 2}}, {}, {}, {{0, 1}}, {{2, 3}}};
+  // In the workspace of bound_collapse: a Patch of its own would allocate ten arrays a flip.
+  Patch& patch = state.patch;
+  patch.points.assign({ps, pt, pa, pb});
+  patch.before.assign({{0, 1, 2}, {1, 0, 3}});
+  patch.after.assign({{2, 0, 3}, {3, 1, 2}});
+  patch.inner_before.clear();
+  patch.inner_after.clear();
+  patch.edges_before.assign({{0, 1}});
+  patch.edges_after.assign({{2, 3}});
   const double gap = graph_gap(patch);
   bound = gap + std::max(state.bound[mesh.face(h)], state.bound[mesh.face(o)]);
   volume = CGAL::determinant(pb - ps, pt - ps, pa - ps) / 6;  // the old faces both hold s
@@ -800,6 +824,10 @@ Mesh mesh_of(const voro3d::Points& vertices, const voro3d::Indices& triangles) {
                           std::to_string(triangles.shape(0)));
   }
   Mesh mesh;
+  // Room for every element first: the property arrays then grow without copies (a closed surface
+  // of t triangles has 3t/2 edges).
+  mesh.reserve(static_cast<Mesh::size_type>(v.shape(0)), static_cast<Mesh::size_type>(3 * t.shape(0) / 2),
+               static_cast<Mesh::size_type>(t.shape(0)));
   for (py::ssize_t i = 0; i < v.shape(0); ++i) mesh.add_vertex(Point(v(i, 0), v(i, 1), v(i, 2)));
   for (py::ssize_t i = 0; i < t.shape(0); ++i) {
     if (mesh.add_face(Vertex(t(i, 0)), Vertex(t(i, 1)), Vertex(t(i, 2))) == Mesh::null_face()) {
@@ -846,6 +874,9 @@ State state_of(Mesh& mesh, const std::vector<char>& frozen, double max_distance,
               max_volume_change};
   state.merges.parent.resize(frozen.size());
   state.mark.assign(frozen.size(), 0);
+  state.local_stamp.assign(frozen.size(), 0);
+  state.local_index.assign(frozen.size(), 0);
+  state.face_stamp.assign(mesh.num_faces(), 0);
   for (std::size_t i = 0; i < frozen.size(); ++i) state.merges.parent[i] = static_cast<std::int64_t>(i);
   return state;
 }

@@ -122,6 +122,25 @@ def test_self_intersecting_pairs_are_sorted_and_skip_neighbours():
     assert _cgal.self_intersecting_pairs(vertices, np.zeros((0, 3), int)).shape == (0, 2)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_self_intersecting_pairs_in_parallel_are_the_serial_ones(seed):
+    # 3000 small random triangles (over the 2048 from which the work is split over two threads),
+    # some sharing vertices, and a slab of them with one lower x (all on one side of the split).
+    rng = np.random.default_rng(seed)
+    corners = rng.uniform(0, 1, (3000, 1, 3)) + rng.uniform(-0.04, 0.04, (3000, 3, 3))
+    corners[:500, :, 0] = np.maximum(corners[:500, :, 0], 0.5)
+    corners[:500, 0, 0] = 0.5
+    vertices, triangles = corners.reshape(-1, 3), np.arange(9000).reshape(-1, 3)
+    triangles[1::7, 0] = triangles[0::7, 1][:len(triangles[1::7])]
+    serial = _cgal.self_intersecting_pairs(vertices, triangles, parallel=False)
+    assert len(serial) > 100
+    assert np.array_equal(_cgal.self_intersecting_pairs(vertices, triangles), serial)
+    changed = rng.random(3000) < 0.3
+    part = _cgal.self_intersecting_pairs(vertices, triangles, changed, parallel=False)
+    assert np.array_equal(part, serial[changed[serial].any(axis=1)])
+    assert np.array_equal(_cgal.self_intersecting_pairs(vertices, triangles, changed), part)
+
+
 @pytest.mark.parametrize("vertices, triangles, error, match", [
     (POINTS, TRIANGLES + 22, ValueError, r"triangles holds index 30 at row 2, outside \[0, 30\) for the 30 rows of vertices"),
     (POINTS, -TRIANGLES, ValueError, r"triangles holds index -1 at row 0"),
