@@ -4,7 +4,7 @@ import open3d as o3d
 import pytest
 
 from voro3d import _cgal
-from voro3d.cleaning import (MAX_DISTANCE, MAX_DISTANCE_SHARE, MAX_VOLUME_CHANGE, _changed_triangles, _shared_positions, clean,
+from voro3d.cleaning import (MAX_DISTANCE, MAX_VOLUME_CHANGE, _changed_triangles, _shared_positions, clean,
                               clean_surface, voxel_size)
 from voro3d.metrics import triangle_quality
 from voro3d.extract import voronoi_surface
@@ -78,8 +78,7 @@ def fitted_sphere():
 
 def test_clean_removes_slivers_and_tiny_faces(fitted_sphere):
     (vertices, triangles), voxel, sphere = fitted_sphere
-    # At 16^3 the share of the size would bind (a third of the voxel bound): the voxel bound alone.
-    new_vertices, new_triangles, info = assert_clean(vertices, triangles, voxel=voxel, max_distance_share=1.0)
+    new_vertices, new_triangles, info = assert_clean(vertices, triangles, voxel=voxel)
     assert len(new_triangles) * 2 <= len(triangles)
     before = triangle_quality((vertices, triangles), sphere)
     after = triangle_quality((new_vertices, new_triangles), sphere)
@@ -90,10 +89,9 @@ def test_clean_removes_slivers_and_tiny_faces(fitted_sphere):
 
 
 def test_crossings_freeze_a_patch_and_clean_again():
-    """Thin plates and random cells cross themselves after a first pass: the loop freezes there
-    (with the voxel bound alone: on these few cells the share of the size binds, and less moves)."""
-    _, _, plate = assert_clean(*random_surface(3, "plate"), max_distance_share=1.0)
-    _, _, cells = assert_clean(*random_surface(2, "random"), max_distance_share=1.0)
+    """Thin plates and random cells cross themselves after a first pass: the loop freezes there."""
+    _, _, plate = assert_clean(*random_surface(3, "plate"))
+    _, _, cells = assert_clean(*random_surface(2, "random"))
     assert plate.rounds > 1 and cells.rounds > 1
     assert cells.frozen_vertices > 0
 
@@ -189,20 +187,8 @@ def test_triangles_that_already_crossed_are_left_as_they_were():
         {tuple(sorted(map(tuple, vertices[triangles[pair]].reshape(-1, 3)))) for pair in crossing}
 
 
-def test_the_share_of_the_size_caps_the_distance():
-    """On a coarse surface the bound is the share of the longest side, and it holds both ways."""
-    vertices, triangles = lattice_ball()
-    extent = np.ptp(vertices, axis=0).max()
-    _, _, loose = clean_surface(vertices, triangles, max_distance_share=1.0)
-    assert loose.max_distance == pytest.approx(MAX_DISTANCE * loose.voxel)
-    _, new_triangles, capped = assert_clean(vertices, triangles, max_distance_share=0.05 * loose.max_distance / extent)
-    assert capped.max_distance == pytest.approx(0.05 * loose.max_distance)
-    assert capped.n_triangles_after > loose.n_triangles_after
-
-
 @pytest.mark.parametrize("mesh, options, match", [
     (tetrahedron(), {"max_distance": -0.1}, "max_distance must be finite and >= 0"),
-    (tetrahedron(), {"max_distance_share": np.inf}, "max_distance_share must be finite and >= 0"),
     (tetrahedron(), {"collapse_length": np.nan}, "collapse_length"),
     (tetrahedron(), {"merge_length": np.inf}, "merge_length"),
     (tetrahedron(), {"min_angle_gain": -1}, "min_angle_gain"),
@@ -259,7 +245,6 @@ def test_defaults_are_the_documented_ones():
 
     parameters = inspect.signature(clean).parameters
     assert parameters["max_distance"].default == MAX_DISTANCE
-    assert parameters["max_distance_share"].default == MAX_DISTANCE_SHARE
     assert parameters["max_volume_change"].default == MAX_VOLUME_CHANGE
 
 

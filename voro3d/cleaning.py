@@ -13,8 +13,7 @@ passes of:
 3. edges flipped where that raises the smallest angle of their two triangles by
    ``min_angle_gain`` degrees (caps and the thin fans of long Voronoi faces).
 
-No change moves the surface farther than ``max_distance`` voxels (nor ``max_distance_share`` of the
-longest side of its bounding box) from the input (a bound carried
+No change moves the surface farther than ``max_distance`` voxels from the input (a bound carried
 per face, both ways: every point of the result is that close to the input and every point of the
 input that close to the result) or takes the enclosed volume more than ``max_volume_change`` from
 the input's. Then the result is tested: closed, edge- and vertex-manifold, consistently oriented
@@ -44,11 +43,6 @@ COLLAPSE_LENGTH = 0.4
 MERGE_LENGTH = 0.05
 MIN_ANGLE_GAIN = 1.0  # degrees
 MAX_VOLUME_CHANGE = 0.005  # of the input's volume
-# The distance bound is also at most this share of the bounding box's longest side: it binds below
-# about 40^3, where 0.2 voxel is a large move for the shape. At 32^3 it holds the clean's CD change
-# (300k samples a surface, the three worst of 38 dev shapes) to +0.8-2.2% instead of +1.5-4.5%; the
-# 38 shapes keep 12.5% of their triangles off-normal instead of 9.1% (Marching Cubes: 17.0%).
-MAX_DISTANCE_SHARE = 0.005
 # Passes, each with its share of max_distance and max_volume_change (src/voro3d_clean.cpp says why).
 PASSES = 2
 
@@ -185,24 +179,22 @@ def _changed_triangles(vertices, triangles, last_vertices, last_triangles, last_
 
 
 def clean(mesh, *, voxel: float | None = None, max_distance: float = MAX_DISTANCE,
-          max_distance_share: float = MAX_DISTANCE_SHARE, collapse_length: float = COLLAPSE_LENGTH,
-          merge_length: float = MERGE_LENGTH, min_angle_gain: float = MIN_ANGLE_GAIN,
-          max_volume_change: float = MAX_VOLUME_CHANGE):
+          collapse_length: float = COLLAPSE_LENGTH, merge_length: float = MERGE_LENGTH,
+          min_angle_gain: float = MIN_ANGLE_GAIN, max_volume_change: float = MAX_VOLUME_CHANGE):
     """A cleaned copy of a watertight surface: no slivers or specks, fewer faces, same guarantees.
 
     Parameters
     ----------
     mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
         Closed, edge-manifold, consistently oriented, no crossing triangles (a VoroMesh surface).
-    voxel, max_distance, max_distance_share, collapse_length, merge_length, min_angle_gain, max_volume_change
+    voxel, max_distance, collapse_length, merge_length, min_angle_gain, max_volume_change
         See :func:`clean_surface`.
 
     Returns
     -------
     open3d.geometry.TriangleMesh
         Closed, edge- and vertex-manifold, outward-oriented, no crossing triangles (tested
-        exactly), with vertex normals; within ``max_distance`` voxels (and ``max_distance_share`` of
-        the longest side) of ``mesh`` both ways and
+        exactly), with vertex normals; within ``max_distance`` voxels of ``mesh`` both ways and
         within ``max_volume_change`` of its volume.
 
     Raises
@@ -211,16 +203,14 @@ def clean(mesh, *, voxel: float | None = None, max_distance: float = MAX_DISTANC
         See :func:`clean_surface`.
     """
     vertices, triangles, _ = clean_surface(*mesh_arrays(mesh), voxel=voxel, max_distance=max_distance,
-                                           max_distance_share=max_distance_share,
                                            collapse_length=collapse_length, merge_length=merge_length,
                                            min_angle_gain=min_angle_gain, max_volume_change=max_volume_change)
     return to_triangle_mesh(vertices, triangles, normals=True)
 
 
 def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distance: float = MAX_DISTANCE,
-                  max_distance_share: float = MAX_DISTANCE_SHARE, collapse_length: float = COLLAPSE_LENGTH,
-                  merge_length: float = MERGE_LENGTH, min_angle_gain: float = MIN_ANGLE_GAIN,
-                  max_volume_change: float = MAX_VOLUME_CHANGE):
+                  collapse_length: float = COLLAPSE_LENGTH, merge_length: float = MERGE_LENGTH,
+                  min_angle_gain: float = MIN_ANGLE_GAIN, max_volume_change: float = MAX_VOLUME_CHANGE):
     """Arrays behind :func:`clean`, and a report.
 
     Parameters
@@ -233,9 +223,6 @@ def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distan
         on. Default: estimated from the triangles (:func:`voxel_size`).
     max_distance : float
         Largest distance, in voxels, between the result and the input (both ways).
-    max_distance_share : float
-        The same bound as a share of the longest side of the input's bounding box; the smaller of
-        the two holds.
     collapse_length : float
         Edges shorter than this, in voxels, are collapsed where the bounds allow.
     merge_length : float
@@ -266,8 +253,7 @@ def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distan
 
     start = time.perf_counter()
     vertices, triangles = mesh_arrays((vertices, triangles))
-    lengths = {"max_distance": max_distance, "max_distance_share": max_distance_share,
-               "collapse_length": collapse_length, "merge_length": merge_length,
+    lengths = {"max_distance": max_distance, "collapse_length": collapse_length, "merge_length": merge_length,
                "min_angle_gain": min_angle_gain, "max_volume_change": max_volume_change}
     for name, value in lengths.items():
         if not np.isfinite(value) or value < 0:
@@ -276,7 +262,6 @@ def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distan
         voxel = voxel_size(vertices, triangles)
     elif not np.isfinite(voxel) or voxel <= 0:
         raise ValueError(f"voxel must be finite and > 0, got {voxel}")
-    distance = min(max_distance * voxel, max_distance_share * float(np.ptp(vertices, axis=0).max()))
     volume = signed_volume(vertices, triangles)
     if not volume > 0:
         raise ValueError(f"mesh must enclose a positive volume with outward normals, got volume {volume:.4g}")
@@ -285,7 +270,7 @@ def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distan
     shared = _shared_positions(vertices)
     frozen = shared.copy()
     new_vertices, new_triangles, label, collapses, flips, log = _cgal.clean_surface(
-        vertices, triangles, frozen, merge_length * voxel, collapse_length * voxel, distance,
+        vertices, triangles, frozen, merge_length * voxel, collapse_length * voxel, max_distance * voxel,
         max_volume_change * volume, np.radians(min_angle_gain), PASSES)
     rounds = 1
     changed = None
@@ -319,7 +304,7 @@ def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distan
         rounds += 1
     assert_closed_manifold(new_vertices, new_triangles)
     info = CleanInfo(n_triangles_before=int(triangles.shape[0]), n_triangles_after=int(new_triangles.shape[0]),
-                     voxel=float(voxel), max_distance=distance,
+                     voxel=float(voxel), max_distance=float(max_distance * voxel),
                      volume_change=signed_volume(new_vertices, new_triangles) / volume - 1, rounds=rounds,
                      input_crossings=int(original.sum()),
                      frozen_vertices=int(frozen.sum()), collapses=int(collapses), flips=int(flips),

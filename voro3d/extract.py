@@ -98,8 +98,8 @@ def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE,
         distance.
     clean : bool
         Remove slivers, tiny faces and nearly coincident Voronoi vertices with
-        :func:`voro3d.cleaning.clean` (its defaults: within 0.2 voxel of the Voronoi faces and
-        1/200 of the longest side, volume within 0.5%; every guarantee below checked again). ``False`` gives the Voronoi
+        :func:`voro3d.cleaning.clean` (its defaults: within 0.2 voxel of the Voronoi faces,
+        volume within 0.5%; every guarantee below checked again). ``False`` gives the Voronoi
         faces themselves, fan-triangulated.
 
     Returns
