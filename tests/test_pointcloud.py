@@ -40,6 +40,19 @@ def test_imls_is_the_signed_distance_to_a_plane():
     assert np.allclose(gradient, [0.0, 0.0, 1.0])
 
 
+def test_imls_agreement_is_low_between_the_sides_of_a_thin_wall():
+    """One plane's normals agree (1); a wall of two sides 0.02 apart, kernel 0.05, cancels."""
+    rng = np.random.default_rng(0)
+    flat = np.c_[rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)]
+    up = np.tile([0.0, 0.0, 1.0], (2000, 1))
+    _, _, one_side = imls(flat, up, np.full(2000, 0.05), flat, agreement=True)
+    assert np.allclose(one_side, 1.0)
+    wall = np.vstack([flat, np.c_[rng.uniform(-1, 1, (2000, 2)), np.full(2000, 0.02)]])
+    normals = np.vstack([-up, up])
+    _, _, two_sides = imls(wall, normals, np.full(4000, 0.05), wall, agreement=True)
+    assert np.median(two_sides) < 0.5
+
+
 def test_robust_imls_keeps_a_sharp_edge():
     # Two faces of a wedge meeting at x = 0: the plain mean of their planes rounds the edge, the
     # robust weights keep the field's zero near the corner.

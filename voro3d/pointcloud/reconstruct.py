@@ -36,12 +36,14 @@ WIDTH_PER_SPACING = 1.5
 TRUSTED_WIDTH_PER_SPACING = 0.75
 WIDTH_PER_NOISE = 4.0
 MAX_TRUSTED_OUTLIERS = 0.01
-# IMLS passes over a noisy cloud's normals before its points move: the points stay where they
-# were (moving them again shrinks curved parts: bunny and armadillo at 0.5% noise, CD +16-24%),
-# the normals of the last pass place them. Two against one, on four dev shapes at 0.5% noise: the
-# target's CD 4-9% lower, NC +0.010-0.012, triangles > 30 deg off the true normal 8.4-8.9% -> 5.5%
-# (bunny, rocker-arm); three passes gain no more.
-NOISY_NORMAL_PASSES = 2
+# A noisy cloud gets a second IMLS pass from the normals of the first before its points move (moving
+# them twice shrinks curved parts: bunny and armadillo at 0.5% noise, CD +16-24%). On four dev shapes
+# at 0.5% noise: the target's CD 4-9% lower, NC +0.010-0.012, triangles > 30 deg off the true normal
+# 8.4-8.9% -> 5.5% (bunny, rocker-arm); a third pass gains no more. Not where the first pass's mean
+# normals mostly cancel (median length under this): the two sides of walls thinner than the noise,
+# whose normals the second pass mixes (a cup lid at 1% noise: 0.46, CD 21 -> 64 with it; other dev
+# shapes at 0.25-1% noise read 0.64-0.98).
+MIN_NORMAL_AGREEMENT = 0.6
 # Fine-scale noise above this share of the spacing turns on the smoothing pass (denoise=None):
 # clean dev clouds read under 0.075, 0.25% noise and more at least 0.19.
 NOISY = 0.13
@@ -136,9 +138,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     1. Outliers out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
        measured; a cloud that fills a volume instead of sampling a surface is refused.
     2. Normals: the given ones, else estimated and oriented (:func:`estimate_normals`).
-    3. On a noisy cloud, IMLS passes (its kernel spans several noise deviations) smooth the
-       normals (``NOISY_NORMAL_PASSES``), then move the points onto the smooth surface and
-       replace their normals with the field's.
+    3. On a noisy cloud, IMLS (its kernel spans several noise deviations) smooths the normals
+       (a second pass where they mostly agree, ``MIN_NORMAL_AGREEMENT``), then moves the points
+       onto the smooth surface and replaces their normals with the field's.
     4. The target, without the pieces the points do not support: screened Poisson when the
        points enclose a volume (their winding level is over ``CLOSED_LEVEL``); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
@@ -235,9 +237,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     smoothed = (noisy or not (closed or dense)) if denoise is None else bool(denoise)
     given = framed
     if smoothed:
-        for _ in range(NOISY_NORMAL_PASSES - 1 if noisy else 0):
-            normals = imls(framed, normals, widths, framed, tree=tree)[1]
-        value, gradient = imls(framed, normals, widths, framed, tree=tree)
+        value, gradient, agreement = imls(framed, normals, widths, framed, tree=tree, agreement=True)
+        if noisy and np.median(agreement) > MIN_NORMAL_AGREEMENT:
+            value, gradient = imls(framed, gradient, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
     target = poisson_surface(framed, normals, poisson_depth(grid)) if closed else None

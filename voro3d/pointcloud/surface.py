@@ -204,7 +204,8 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     return SheetSurface(supported, vertices, triangles, float(offset))
 
 
-def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536):
+def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536,
+         agreement: bool = False):
     """Robust IMLS signed distance and its direction at ``queries``.
 
     f(x) = sum_i w_i(x) n_i . (x - p_i) / sum_i w_i(x), with w_i = exp(-|x - p_i|^2 / h_i^2)
@@ -220,6 +221,8 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
         Gaussian kernel width per point.
     queries : (q, 3) float64
     tree : scipy.spatial.cKDTree of ``points``, optional
+    agreement : bool
+        Also return how well the neighbours' normals agree.
 
     Returns
     -------
@@ -227,6 +230,9 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
         Positive outside. Queries whose neighbours all lie beyond ~6 widths get the plain
         distance to the nearest tangent plane.
     gradient : (q, 3) float64
+    agreement : (q,) float64
+        Only with ``agreement=True``: the length of the weighted mean normal, 1 where the
+        neighbours' normals agree, near 0 where they cancel (the two sides of a thin wall).
     """
     from scipy.spatial import cKDTree
 
@@ -234,6 +240,7 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
     k = min(k, points.shape[0])
     value = np.empty(queries.shape[0])
     gradient = np.empty((queries.shape[0], 3))
+    length = np.empty(queries.shape[0])
     for start in range(0, queries.shape[0], block):
         x = queries[start:start + block]
         distance, neighbour = tree.query(x, k=k, workers=-1)
@@ -249,8 +256,10 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
             f = np.einsum("qk,qk->q", weight, planes) / weight.sum(axis=1)
         value[start:start + block] = f
         mean = np.einsum("qk,qkj->qj", weight, normals[neighbour])
-        gradient[start:start + block] = mean / np.maximum(np.linalg.norm(mean, axis=1), 1e-12)[:, None]
-    return value, gradient
+        norm = np.linalg.norm(mean, axis=1)
+        gradient[start:start + block] = mean / np.maximum(norm, 1e-12)[:, None]
+        length[start:start + block] = norm / weight.sum(axis=1)
+    return (value, gradient, length) if agreement else (value, gradient)
 
 
 def target_surface(points, normals, widths, resolution: int, *, dense: bool = False,
