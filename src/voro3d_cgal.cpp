@@ -216,7 +216,7 @@ struct BoxSplit {
 // Zomorodian and Edelsbrunner), so the cost follows the number of nearby pairs, not its square.
 // With `changed`, a (t,) bool mask, only the pairs with at least one changed triangle are tested.
 // With `parallel`, from kParallelBoxes triangles on, the work is split over two threads (see
-// split_box_pairs); the pairs are sorted, so the answer is the serial one.
+// BoxSplit); the pairs are sorted, so the answer is the serial one.
 py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in, const py::object& triangles_in,
                                                   const py::object& changed_in, bool parallel) {
   Points vertices = check_points(vertices_in, "vertices", 0);

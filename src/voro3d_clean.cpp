@@ -230,6 +230,23 @@ bool overlap(const Patch& patch, const Triangle& p, const Triangle& q) {
   return !(separates(p, q) | separates(q, p));
 }
 
+// A set of indices emptied in constant time: i is in it while stamp[i] is the current stamp (the
+// stamps are cleared only when the counter wraps round).
+struct Marks {
+  std::vector<std::uint32_t> stamp;
+  std::uint32_t current = 0;
+
+  void resize(std::size_t n) { stamp.assign(n, 0); }
+  void clear() {
+    if (++current == 0) {
+      std::fill(stamp.begin(), stamp.end(), 0);
+      current = 1;
+    }
+  }
+  bool has(std::size_t i) const { return stamp[i] == current; }
+  void add(std::size_t i) { stamp[i] = current; }
+};
+
 // Union-find over input vertex indices: parent[v] is the vertex v was merged into.
 struct Merges {
   std::vector<std::int64_t> parent;
@@ -288,20 +305,18 @@ struct State {
   CleanLog* log = nullptr;
   // Workspace of bound_collapse (the patch: of bound_flip too).
   Patch patch;
-  // A vertex's local index is local_index[v] while local_stamp[v] is patch_stamp, and a face was
-  // seen while face_stamp[f] is: searching the patch's lists instead mispredicted where each
-  // search ended, a third of the mispredicted branches of a clean.
-  std::vector<std::uint32_t> local_stamp, face_stamp;
+  // A vertex's local index is local_index[v] while v is in `local`, and a face was seen while it
+  // is in `seen`: searching the patch's lists instead mispredicted where each search ended, a
+  // third of the mispredicted branches of a clean.
+  Marks local, seen;
   std::vector<int> local_index;
-  std::uint32_t patch_stamp = 0;
   std::vector<Face> kept;
   std::vector<double> old_bound, shifted;
   std::vector<int> by_bound;
   std::vector<std::pair<int, double>> removed;  // third vertex and bound of the two faces on the edge
 
-  // Workspace of satisfies_link_condition: a vertex is marked when its mark is mark_stamp.
-  std::vector<std::uint32_t> mark;
-  std::uint32_t mark_stamp = 0;
+  // Workspace of satisfies_link_condition: the neighbours of one end of the edge.
+  Marks marked;
 
   bool volume_allows(double change) const { return std::abs(volume_change + change) <= max_volume_change; }
 
@@ -333,15 +348,11 @@ bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const 
   old_bound.clear();
   shifted.clear();
   removed.clear();
-  if (++state->patch_stamp == 0) {
-    std::fill(state->local_stamp.begin(), state->local_stamp.end(), 0);
-    std::fill(state->face_stamp.begin(), state->face_stamp.end(), 0);
-    state->patch_stamp = 1;
-  }
-  const std::uint32_t stamp = state->patch_stamp;
+  state->local.clear();
+  state->seen.clear();
   auto index = [&](Vertex v) {
-    if (state->local_stamp[v.idx()] == stamp) return state->local_index[v.idx()];
-    state->local_stamp[v.idx()] = stamp;
+    if (state->local.has(v.idx())) return state->local_index[v.idx()];
+    state->local.add(v.idx());
     state->local_index[v.idx()] = static_cast<int>(patch.points.size());
     patch.points.push_back(mesh.point(v));
     return static_cast<int>(patch.points.size() - 1);
@@ -355,8 +366,8 @@ bool bound_collapse(const Mesh& mesh, State* state, Vertex v0, Vertex v1, const 
   for (const Vertex centre : {v0, v1}) {
     for (const auto h : mesh.halfedges_around_target(mesh.halfedge(centre))) {
       const Face f = mesh.face(h);
-      if (state->face_stamp[f.idx()] == stamp) continue;
-      state->face_stamp[f.idx()] = stamp;
+      if (state->seen.has(f.idx())) continue;
+      state->seen.add(f.idx());
       old_bound.push_back(state->bound[f]);
       Triangle t;
       int k = 0, moved = 0;
@@ -453,14 +464,11 @@ bool satisfies_link_condition(const Mesh& mesh, Mesh::Halfedge_index v0_v1, Stat
   const auto v1_v0 = mesh.opposite(v0_v1);
   const Vertex v0 = mesh.source(v0_v1), v1 = mesh.target(v0_v1);
   const Vertex vL = mesh.target(mesh.next(v0_v1)), vR = mesh.target(mesh.next(v1_v0));
-  if (++state.mark_stamp == 0) {
-    std::fill(state.mark.begin(), state.mark.end(), 0);
-    state.mark_stamp = 1;
-  }
-  for (const auto h : mesh.halfedges_around_target(mesh.halfedge(v1))) state.mark[mesh.source(h).idx()] = state.mark_stamp;
+  state.marked.clear();
+  for (const auto h : mesh.halfedges_around_target(mesh.halfedge(v1))) state.marked.add(mesh.source(h).idx());
   for (const auto h : mesh.halfedges_around_target(mesh.halfedge(v0))) {
     const Vertex k = mesh.source(h);
-    if (k != v1 && k != vL && k != vR && state.mark[k.idx()] == state.mark_stamp) return false;
+    if (k != v1 && k != vL && k != vR && state.marked.has(k.idx())) return false;
   }
   if (CGAL::is_tetrahedron(v0_v1, mesh)) return false;
   return !(mesh.next(v0_v1) == mesh.opposite(mesh.prev(v1_v0)) && mesh.prev(v0_v1) == mesh.opposite(mesh.next(v1_v0)));
@@ -873,10 +881,10 @@ State state_of(Mesh& mesh, const std::vector<char>& frozen, double max_distance,
   State state{&frozen, mesh.add_property_map<Face, double>("f:voro3d_bound", 0.0).first, max_distance,
               max_volume_change};
   state.merges.parent.resize(frozen.size());
-  state.mark.assign(frozen.size(), 0);
-  state.local_stamp.assign(frozen.size(), 0);
+  state.marked.resize(frozen.size());
+  state.local.resize(frozen.size());
   state.local_index.assign(frozen.size(), 0);
-  state.face_stamp.assign(mesh.num_faces(), 0);
+  state.seen.resize(mesh.num_faces());
   for (std::size_t i = 0; i < frozen.size(); ++i) state.merges.parent[i] = static_cast<std::int64_t>(i);
   return state;
 }

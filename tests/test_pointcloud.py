@@ -246,11 +246,16 @@ def test_poisson_depth_follows_the_grid():
     assert [poisson_depth(g) for g in (8, 32, 64, 128, 512)] == [6, 7, 8, 9, 10]
 
 
-def test_a_noisy_sparse_cloud_gives_one_smooth_piece():
-    mesh = example_mesh("torus")
-    points, _ = sample_surface(mesh, 3000, seed=5)
+def _noisy_cloud(name: str, n: int):
+    """An example mesh and ``n`` points sampled from it with 1% of its diagonal of Gaussian noise."""
+    mesh = example_mesh(name)
+    points, _ = sample_surface(mesh, n, seed=5)
     diagonal = np.linalg.norm(np.ptp(points, axis=0))
-    noisy = points + np.random.default_rng(11).normal(scale=0.01 * diagonal, size=points.shape)
+    return mesh, points + np.random.default_rng(11).normal(scale=0.01 * diagonal, size=points.shape)
+
+
+def test_a_noisy_sparse_cloud_gives_one_smooth_piece():
+    mesh, noisy = _noisy_cloud("torus", 3000)
     shape, info = reconstruct_points(noisy, grid=32, steps=150)
     out = shape.to_open3d()
     assert info.smoothed and check_watertight(out).watertight and _pieces(out) == 1
@@ -263,10 +268,7 @@ def test_noisy_normals_are_smoothed_before_the_points_move():
     30 degrees off the true normal 13.9% -> 7.3% (one pass, two passes)."""
     from voro3d.metrics import triangle_quality
 
-    mesh = example_mesh("sphere")
-    points, _ = sample_surface(mesh, 4000, seed=5)
-    diagonal = np.linalg.norm(np.ptp(points, axis=0))
-    noisy = points + np.random.default_rng(11).normal(scale=0.01 * diagonal, size=points.shape)
+    mesh, noisy = _noisy_cloud("sphere", 4000)
     shape, info = reconstruct_points(noisy, grid=24, steps=150)
     out = shape.to_open3d()
     assert info.smoothed

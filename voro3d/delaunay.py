@@ -117,11 +117,12 @@ def circumcenters(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         offset = numerator / (2 * det[:, None])
         centres = a + offset
-        # |error| <= eps (S + 2 R P) / (2 |det|) + eps |a|: S bounds the numerator's terms,
-        # P = |u||v||w| the determinant's, R = |offset|. Doubled for the terms it drops.
+        # |error| <= eps (S + 2 R P) / (2 |det|) + eps |a|: P = |u||v||w| bounds the determinant's
+        # terms, S = P (|u| + |v| + |w|) the numerator's (|u|^2 |v||w| and so on), R = |offset|.
+        # Doubled for the terms it drops.
         lengths = np.sqrt(np.stack([uu, vv, ww], axis=1))
         products = lengths.prod(axis=1)
-        spread = np.einsum("ij,ij->i", lengths**2, products[:, None] / lengths)
+        spread = products * lengths.sum(axis=1)
         error = np.finfo(np.float64).eps * ((spread + 2 * np.linalg.norm(offset, axis=1) * products)
                                            / np.abs(det) + 2 * np.abs(a).max(axis=1))
         extent = float(np.ptp(points, axis=0).max()) if points.size else 0.0
