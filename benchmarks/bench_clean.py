@@ -16,7 +16,10 @@ before it, after handing freed heap back with ``malloc_trim``), and its rise ove
 ``--clouds`` does the same for the point-cloud outputs: clouds made as ``bench_pointcloud.py``
 makes them (``CLOUD_CONDITIONS`` of its conditions) from ``CLOUD_SHAPES``, reconstructed by
 :func:`voro3d.pointcloud.reconstruct_points` (grid auto), their surface before and after the clean,
-Marching Cubes of the true mesh at the same grid beside them.
+Marching Cubes of the true mesh at the same grid beside them. Also the surface the library
+returns (:func:`voro3d.pointcloud.cloud_mesh`: the cleaned one, snapped onto the target surface on
+noisy clouds) and Marching Cubes of the cloud's own target surface at the same grid: the
+comparison with the same information (noise, holes) that the true mesh does not have.
 
 Writes ``benchmarks/results/clean_<grids>.{md,json}`` (``clean_clouds`` with ``--clouds``) and a
 PNG of a few shapes before and after.
@@ -38,7 +41,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "data" / "dev"
 CACHE = ROOT / "out" / "bench_clean"
-SURFACES = ("uncleaned", "cleaned", "mc")
+SURFACES = ("uncleaned", "cleaned", "snapped", "mc")
+CLOUD_SURFACES = ("uncleaned", "cleaned", "output", "mc", "mc_target", "poisson")
 PICTURED = ("cad_fandisk.obj", "organic_bunny.off", "cad_rocker-arm.obj")
 CLOUD_SHAPES = ("organic_bunny.off", "cad_fandisk.obj", "organic_armadillo.obj", "cad_rocker-arm.obj")
 CLOUD_CONDITIONS = ("clean 20k", "noise 0.5%", "outliers 2%", "third missing")
@@ -157,15 +161,20 @@ def _scores(surfaces, source, info):
 
 
 def _one(path, grid, refit, queue):
-    from voro3d.io import load_mesh, save_mesh, to_triangle_mesh
+    from voro3d.io import load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
+    from voro3d.snapping import snap
 
     try:
         path = Path(path)
         source = load_mesh(path)
         shape, fit = _fitted(path, grid, refit)
         surfaces, info, timing = _surfaces(source, shape, grid, fit["open_input"])
+        start = time.perf_counter()
+        surfaces["snapped"] = mesh_arrays(snap(surfaces["cleaned"], source, voxel=info.voxel))
+        timing["snap_seconds"] = time.perf_counter() - start
         row = dict(shape=path.name, grid=grid, status="ok", **fit, **timing,
-                   clean_time_ratio=timing["clean_seconds"] / fit["fit_seconds"])
+                   clean_time_ratio=timing["clean_seconds"] / fit["fit_seconds"],
+                   snap_time_ratio=timing["snap_seconds"] / fit["fit_seconds"])
         if "fit_cpu_seconds" in fit:
             row["clean_cpu_ratio"] = timing["clean_cpu_seconds"] / fit["fit_cpu_seconds"]
         row.update(_scores(surfaces, source, info))
@@ -184,8 +193,11 @@ def _one_cloud(path, condition, queue):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_pointcloud import make_cloud
 
-    from voro3d.io import load_mesh
-    from voro3d.pointcloud import reconstruct_points
+    from voro3d.baselines import marching_cubes
+    from voro3d.io import fit_frame, load_mesh, mesh_arrays
+    from voro3d.pointcloud import cloud_mesh, reconstruct_points
+    from voro3d.queries import sdf_grid
+    from voro3d.snapping import MAX_MOVE as SNAP_MAX_MOVE
 
     try:
         path = Path(path)
@@ -195,10 +207,25 @@ def _one_cloud(path, condition, queue):
         shape, cloud_info = reconstruct_points(cloud)
         reconstruct_seconds = time.perf_counter() - start
         surfaces, info, timing = _surfaces(source, shape, cloud_info.grid, False)
+        start = time.perf_counter()
+        surfaces["output"] = mesh_arrays(cloud_mesh(shape, cloud_info))
+        output_seconds = time.perf_counter() - start
+        frame = fit_frame(source)
+        vertices, triangles = marching_cubes(sdf_grid(frame.apply_mesh(cloud_info.surface), cloud_info.grid,
+                                                      allow_open=True))
+        surfaces["mc_target"] = (frame.invert(vertices), triangles)
         surfaces["poisson"] = _best_poisson(cloud, source)
-        row = dict(shape=path.name, condition=condition, grid=cloud_info.grid, status="ok",
-                   reconstruct_seconds=reconstruct_seconds, **timing)
+        row = dict(shape=path.name, condition=condition, grid=cloud_info.grid, status="ok", target=cloud_info.target,
+                   snapped=cloud_info.snap, reconstruct_seconds=reconstruct_seconds, output_seconds=output_seconds,
+                   **timing)
         row.update(_scores(surfaces, source, info))
+        # The output against the uncleaned surface, in the grid's voxels: the clean's bound, plus the
+        # snap's largest move where it snapped.
+        to_input = _distances_voxels(surfaces["output"], surfaces["uncleaned"], cloud_info.voxel)
+        from_input = _distances_voxels(surfaces["uncleaned"], surfaces["output"], cloud_info.voxel)
+        row.update(output_distance_max=float(max(to_input.max(), from_input.max())),
+                   output_distance_bound=(info.max_distance + SNAP_MAX_MOVE * cloud_info.voxel * cloud_info.snap)
+                   / cloud_info.voxel)
         row["voxel_estimate_ratio"] = info.voxel / _grid_voxel(source, cloud_info.grid)
         queue.put(row)
     except Exception as error:  # one bad cloud is recorded, not fatal
@@ -239,6 +266,14 @@ def _summary(rows, grid):
         out[f"{key}_change_mean"], out[f"{key}_change_worst"] = float(np.mean(change)), float(
             max(change) if key == "chamfer_x1e5" else min(change))
     out["off_normal_above_mc"] = int(sum(r["cleaned"]["off_normal_share"] > r["mc"]["off_normal_share"] for r in ok))
+    out["snapped_off_normal_above_mc"] = int(sum(r["snapped"]["off_normal_share"] > r["mc"]["off_normal_share"]
+                                                 for r in ok))
+    snapped_change = [r["snapped"]["chamfer_x1e5"] / r["cleaned"]["chamfer_x1e5"] - 1 for r in ok]
+    out["snapped_cd_change_mean"], out["snapped_cd_change_worst"] = float(np.mean(snapped_change)), float(
+        max(snapped_change))
+    out["snapped_nc_change_worst"] = float(min(r["snapped"]["nc"] - r["cleaned"]["nc"] for r in ok))
+    out["snap_seconds_mean"] = float(np.mean([r["snap_seconds"] for r in ok]))
+    out["snap_time_ratio_max"] = float(max(r["snap_time_ratio"] for r in ok))
     out["slivers_max"] = float(max(r["cleaned"]["sliver_share"] for r in ok))
     out["off_normal_max"] = float(max(r["cleaned"]["off_normal_share"] for r in ok))
     out["clean_seconds_mean"] = float(np.mean([r["clean_seconds"] for r in ok]))
@@ -273,7 +308,9 @@ def write_tables(rows, grids, out: Path):
              "angle under 5 degrees. CD x1e5, F1 at 0.003, NC against the input (100k samples each). "
              "Watertight: closed, manifold, oriented, positive volume, no crossing triangles (exact). Distances "
              "between the cleaned and uncleaned surfaces: 100k samples each way, in the voxels `clean` estimated "
-             "(`voxel_size`; their ratio to the grid's voxel beside them), against the bound it guarantees.", "",
+             "(`voxel_size`; their ratio to the grid's voxel beside them), against the bound it guarantees. "
+             "*snapped*: the cleaned surface fitted to the input (`voro3d.snap(cleaned, input)`; not part of "
+             "`clean`, and not applied by the mesh paths).", "",
              "| grid | shapes | surface | " + " | ".join(name for name, _, _ in METRICS) + " | watertight % |",
              "|---|---|---|" + "---|" * len(METRICS) + "---|"]
     for s in summaries:
@@ -303,16 +340,27 @@ def write_tables(rows, grids, out: Path):
             f"{s['distance_max']:.3f} / {s['distance_bound']:.2f} | "
             f"{s['voxel_estimate_ratio_min']:.2f}-{s['voxel_estimate_ratio_max']:.2f} | "
             f"{s['volume_change_max']:.2e} | {s['rounds_max']} |")
+    lines += ["", "| grid | snapped: CD change against cleaned (mean, worst) | NC change (worst) | "
+              "shapes off-normal above MC | snap s (mean) | snap / fit wall (max) |", "|---|---|---|---|---|---|"]
+    for s in summaries:
+        if s["shapes"]:
+            lines.append(f"| {s['grid']} | {s['snapped_cd_change_mean']:+.2%}, {s['snapped_cd_change_worst']:+.2%} | "
+                         f"{s['snapped_nc_change_worst']:+.4f} | {s['snapped_off_normal_above_mc']} | "
+                         f"{s['snap_seconds_mean']:.2f} | {s['snap_time_ratio_max']:.1%} |")
     lines += ["", "## Per shape", "",
               "| shape | grid | faces before -> after | off-normal % unclean / clean / MC | slivers % unclean / "
               "clean | CD unclean / clean | F1 unclean / clean | NC unclean / clean | clean s | fit s | "
-              "watertight | rounds |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "watertight | rounds | snapped: off-normal % / CD / NC / s |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['shape']} | {r['grid']} | failed: {r['error']} |" + " |" * 9)
+            lines.append(f"| {r['shape']} | {r['grid']} | failed: {r['error']} |" + " |" * 10)
             continue
+        p = r["snapped"]
         lines.append(f"| {r['shape']}{' *' if r['open_input'] else ''} | {r['grid']} | {_before_after_cells(r)} | "
-                     f"{r['fit_seconds']:.1f} | {r['cleaned']['watertight']} | {r['clean']['rounds']} |")
+                     f"{r['fit_seconds']:.1f} | {r['cleaned']['watertight'] and p['watertight']} | "
+                     f"{r['clean']['rounds']} | {p['off_normal_share']:.1%} / {p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / "
+                     f"{r['snap_seconds']:.2f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
 
@@ -347,35 +395,44 @@ def write_cloud_tables(rows, out: Path):
              "", "Clouds made as `bench_pointcloud.py` makes them, reconstructed by "
              "`voro3d.pointcloud.reconstruct_points` (grid auto); metrics as in `clean_32_64.md`, against the "
              "mesh the cloud was sampled from; Marching Cubes of that mesh's SDF at the same grid, and Open3D's "
-             "Poisson pipeline on the same cloud (as `bench_pointcloud.py` runs it, the better depth), for reference.",
+             "Poisson pipeline on the same cloud (as `bench_pointcloud.py` runs it, the better depth), for reference. "
+             "*output*: what `voro3d.reconstruct` returns (`voro3d.pointcloud.cloud_mesh`: the cleaned surface, snapped "
+             "onto the target surface on noisy clouds). *mc_target*: Marching Cubes of the cloud's own target surface "
+             "(the smooth surface the VoroMesh is fitted to) at the same grid, which has the noise and the hole "
+             "fills the cloud leaves and the true mesh does not.",
              "", "| surface | clouds | " + " | ".join(name for name, _, _ in METRICS) + " | watertight % |",
              "|---|---|" + "---|" * len(METRICS) + "---|"]
-    for surface in (*SURFACES, "poisson"):
+    for surface in CLOUD_SURFACES:
         if ok:
             cells = [fmt.format(np.mean([r[surface][key] for r in ok])) for _, key, fmt in METRICS]
             lines.append(f"| {surface} | {len(ok)} | " + " | ".join(cells) +
                          f" | {100 * np.mean([r[surface]['watertight'] for r in ok]):.0f} |")
     conditions = list(dict.fromkeys(r["condition"] for r in ok))
     lines += ["", "Off-normal share by condition, of the triangles / of the area:", "",
-              "| condition | clouds | cleaned | Marching Cubes | Poisson |", "|---|---|---|---|---|"]
+              "| condition | clouds | cleaned | output | MC of the true mesh | MC of the target | Poisson |",
+              "|---|---|---|---|---|---|---|"]
     for condition in conditions:
         group = [r for r in ok if r["condition"] == condition]
         cells = [f"{np.mean([r[s]['off_normal_share'] for r in group]):.1%} / "
-                 f"{np.mean([r[s]['off_normal_area_share'] for r in group]):.1%}" for s in ("cleaned", "mc", "poisson")]
+                 f"{np.mean([r[s]['off_normal_area_share'] for r in group]):.1%}" for s in ("cleaned", "output", "mc", "mc_target", "poisson")]
         lines.append(f"| {condition} | {len(group)} | " + " | ".join(cells) + " |")
     lines += ["", "| shape | condition | grid | faces before -> after | off-normal % unclean / clean / MC | "
               "slivers % unclean / clean | CD unclean / clean | F1 unclean / clean | NC unclean / clean | "
-              "clean s | reconstruct s | watertight | distance max / bound (voxels) | off-normal % Poisson |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "clean s | reconstruct s | watertight | distance max / bound (voxels) | output: off-normal % / CD / F1 / NC | "
+              "output distance max / bound (voxels) | off-normal % MC of the target / Poisson |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['shape']} | {r['condition']} | | failed: {r['error']} |" + " |" * 10)
+            lines.append(f"| {r['shape']} | {r['condition']} | | failed: {r['error']} |" + " |" * 12)
             continue
+        o = r["output"]
         lines.append(
             f"| {r['shape']} | {r['condition']} | {r['grid']} | {_before_after_cells(r)} | "
             f"{r['reconstruct_seconds']:.1f} | {r['cleaned']['watertight']} | "
             f"{max(r['distance_to_uncleaned_max'], r['distance_from_uncleaned_max']):.3f} / {r['distance_bound']:.2f} | "
-            f"{100 * r['poisson']['off_normal_share']:.1f}% |")
+            f"{o['off_normal_share']:.1%}{' (snapped)' if r['snapped'] else ''} / {o['chamfer_x1e5']:.3f} / "
+            f"{o['f1']:.3f} / {o['nc']:.3f} | {r['output_distance_max']:.3f} / {r['output_distance_bound']:.2f} | "
+            f"{r['mc_target']['off_normal_share']:.1%} / {r['poisson']['off_normal_share']:.1%} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
 

@@ -6,7 +6,8 @@ Gaussian noise, a 20x density ramp, uniform outliers in the bounding box, a thir
 missing. On each cloud:
 
 * VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
-  target surface, fit), timed with its split.
+  target surface, fit), timed with its split, and ``cloud_mesh`` (extraction, clean, fit to the
+  target), as ``voro3d.reconstruct`` returns it.
 * Poisson, as a user of Open3D would run it: statistical outlier removal (20 neighbours, 2
   deviations), normals (30 neighbours), ``orient_normals_consistent_tangent_plane(30)``, screened
   Poisson at depth 7 and 8, the one with the lower CD per shape (its own pipeline time).
@@ -181,7 +182,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
 
     from voro3d.io import mesh_arrays, save_mesh
     from voro3d.metrics import evaluate
-    from voro3d.pointcloud import reconstruct_points, transfer_colors
+    from voro3d.pointcloud import cloud_mesh, reconstruct_points, transfer_colors
     from voro3d.watertight import check_watertight
 
     points = make_cloud(source, condition)
@@ -192,7 +193,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
     start = time.perf_counter()
     try:
         shape, info = reconstruct_points(points, grid=grid, progress=False)
-        mesh = shape.to_open3d()
+        mesh = cloud_mesh(shape, info)
         if colours is not None:
             mesh.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(mesh.vertices), points, colours))
         seconds = time.perf_counter() - start
@@ -208,18 +209,17 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
         row["voromesh"] = dict(error=f"{type(error).__name__}: {error}", watertight=False,
                                seconds=time.perf_counter() - start)
         meshes = {}
-    if not with_poisson:
-        return dict(row, poisson={})
-    depth, mesh, scores, seconds, orientation = best_poisson(points, source, colours)
-    row["poisson"] = dict(scores, seconds=seconds, depth=depth, pieces=_pieces(mesh), orientation=orientation,
-                          closed=bool(mesh.is_edge_manifold() and mesh.is_watertight()))
-    if colours is not None:
-        row["poisson"]["colour_error"] = _colour_error(mesh, source, low, high)
-    meshes["poisson"] = mesh
+    if with_poisson:
+        depth, mesh, scores, seconds, orientation = best_poisson(points, source, colours)
+        row["poisson"] = dict(scores, seconds=seconds, depth=depth, pieces=_pieces(mesh), orientation=orientation,
+                              closed=bool(mesh.is_edge_manifold() and mesh.is_watertight()))
+        if colours is not None:
+            row["poisson"]["colour_error"] = _colour_error(mesh, source, low, high)
+        meshes["poisson"] = mesh
     if name in PICTURED and (condition in PICTURED_CONDITIONS or condition == COLOURED):
         for method, mesh in meshes.items():
             save_mesh(mesh, picture_dir / f"{Path(name).stem}_{condition.replace(' ', '_')}_{method}.ply")
-    return row
+    return row if with_poisson else dict(row, poisson={})
 
 
 def run_scans(folder: Path, grid, picture_dir):
@@ -228,7 +228,7 @@ def run_scans(folder: Path, grid, picture_dir):
     import open3d as o3d
 
     from voro3d.io import save_mesh
-    from voro3d.pointcloud import reconstruct_points
+    from voro3d.pointcloud import cloud_mesh, reconstruct_points
     from voro3d.watertight import check_watertight
 
     rows = []
@@ -246,7 +246,7 @@ def run_scans(folder: Path, grid, picture_dir):
 
             checked_points, checked_normals = _oriented(points, normals)
             shape, info = reconstruct_points(checked_points, checked_normals, grid=grid)
-            mesh = shape.to_open3d()
+            mesh = cloud_mesh(shape, info)
             report = check_watertight(mesh)
             row["voromesh"] = dict(_scan_scores(mesh, points, normals, usable, diagonal),
                                    seconds=time.perf_counter() - start, grid=info.grid, pieces=_pieces(mesh),
@@ -288,7 +288,7 @@ def write(out: Path, meta, rows, scans):
     lines = [f"# Point clouds as they come -> watertight meshes ({meta['date']}, {meta['machine']}, load average "
              f"{meta['load_before']} before, {meta.get('load_after', '?')} after)", "",
              f"Clouds without normals sampled from {len({r['shape'] for r in rows})} dev meshes. VoroMesh: "
-             f"`voro3d.pointcloud.reconstruct_points(points, grid={meta['grid']})`. Poisson: Open3D statistical "
+             f"`voro3d.pointcloud.reconstruct_points(points, grid={meta['grid']})`, then `cloud_mesh`. Poisson: Open3D statistical "
              "outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation (30; after "
              f"{ORIENT_TIMEOUT} s the signs of voro3d's normals instead, marked * per shape), screened Poisson "
              "depth 7 or 8, the lower CD per shape. CD x1e5, F1 at 0.003, NC against the mesh (NDC frame, 100k "
@@ -414,7 +414,12 @@ def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
 
 def merge(sources, out: Path, folder: Path):
     runs = [json.loads(Path(source).read_text()) for source in sources]
-    rows = {(r["shape"], r["condition"]): r for run in runs for r in run["rows"]}
+    rows = {}
+    for r in (r for run in runs for r in run["rows"]):
+        key = (r["shape"], r["condition"])
+        if not r.get("poisson") and key in rows:  # a --no-poisson run refreshes the VoroMesh side only
+            r = dict(r, poisson=rows[key]["poisson"])
+        rows[key] = r
     scans = {s["scan"]: s for run in runs for s in run["scans"]}
     meta = dict(runs[0]["meta"], load_after=runs[-1]["meta"].get("load_after", "?"))
     rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
@@ -435,7 +440,8 @@ def main():
     parser.add_argument("--no-poisson", action="store_true", help="VoroMesh only (Open3D's tangent-plane orientation "
                         "can take minutes at 10^5 points)")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
-    parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running")
+    parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
+                        "(later files win; a row without Poisson keeps the earlier file's Poisson)")
     args = parser.parse_args()
     import multiprocessing
 

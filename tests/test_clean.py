@@ -4,7 +4,7 @@ import open3d as o3d
 import pytest
 
 from voro3d import _cgal
-from voro3d.cleaning import (MAX_DISTANCE, MAX_VOLUME_CHANGE, _changed_triangles, _shared_positions, clean,
+from voro3d.cleaning import (MAX_DISTANCE, MAX_VOLUME_CHANGE, _changed_triangles, shared_positions, clean,
                               clean_surface, voxel_size)
 from voro3d.metrics import triangle_quality
 from voro3d.extract import voronoi_surface
@@ -116,14 +116,14 @@ def test_a_round_after_a_replay_tests_the_triangles_it_changed():
     assert _changed_triangles(vertices, triangles, vertices, triangles[:0], np.zeros((0, 2), np.int64), none).all()
 
 
-def test_shared_positions_match_unique_rows():
+def testshared_positions_match_unique_rows():
     rng = np.random.default_rng(1)
     vertices = rng.normal(size=(500, 3))
     vertices[rng.integers(0, 500, 40)] = vertices[rng.integers(0, 500, 40)]
     vertices[:20, 0] = 0.5  # equal x, different points
     _, first, counts = np.unique(vertices, axis=0, return_inverse=True, return_counts=True)
-    assert np.array_equal(_shared_positions(vertices), counts[first.reshape(-1)] > 1)
-    assert not _shared_positions(vertices[:0]).size
+    assert np.array_equal(shared_positions(vertices), counts[first.reshape(-1)] > 1)
+    assert not shared_positions(vertices[:0]).size
 
 
 def test_sheets_touching_at_a_vertex_stay_touching():

@@ -30,6 +30,7 @@ _PUBLIC = {
     "WatertightReport": "watertight",
     "evaluate": "metrics",
     "clean": "cleaning",
+    "snap": "snapping",
     "render_meshes": "render",
     "predict": "infer",
     "predict_from_mesh": "infer",

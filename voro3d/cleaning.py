@@ -125,7 +125,7 @@ def voxel_size(vertices: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.sqrt(area / triangles.shape[0]) / _TRIANGLE_SIDE_PER_VOXEL)
 
 
-def _shared_positions(vertices: np.ndarray) -> np.ndarray:
+def shared_positions(vertices: np.ndarray) -> np.ndarray:
     """(n,) bool: the vertices whose position another vertex has too. Only vertices that share
     their x with another go through ``np.unique``'s row comparison (30 ms at 50k vertices)."""
     x = vertices[:, 0]
@@ -267,7 +267,7 @@ def clean_surface(vertices, triangles, *, voxel: float | None = None, max_distan
         raise ValueError(f"mesh must enclose a positive volume with outward normals, got volume {volume:.4g}")
 
     # Sheets of a non-manifold solid touch at vertices duplicated by the extraction: kept in place.
-    shared = _shared_positions(vertices)
+    shared = shared_positions(vertices)
     frozen = shared.copy()
     new_vertices, new_triangles, label, collapses, flips, log = _cgal.clean_surface(
         vertices, triangles, frozen, merge_length * voxel, collapse_length * voxel, max_distance * voxel,

@@ -51,7 +51,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         and for sparse one-sided scans; True or False force it. Meshes: must stay None.
     clean : bool
         Remove slivers, tiny faces and nearly coincident vertices (:func:`voro3d.cleaning.clean`,
-        every guarantee kept); ``False`` keeps the Voronoi faces as they are.
+        every guarantee kept) and, on a noisy cloud, snap the vertices onto the smooth target
+        surface (:func:`voro3d.pointcloud.cloud_mesh`); ``False`` keeps the Voronoi faces as they are.
     progress : bool
         Show a progress bar over the fit's steps (the learned method has no loop to show).
 
@@ -89,12 +90,12 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         from .infer import predict_from_mesh
 
         return predict_from_mesh(data, grid).to_open3d(clean=clean)
-    from .pointcloud import reconstruct_points, transfer_colors
+    from .pointcloud import cloud_mesh, reconstruct_points, transfer_colors
 
     points, normals, colors = data
-    shape, _ = reconstruct_points(points, normals, grid=grid, method=method, denoise=denoise, progress=progress,
-                                  **fit_options)
-    mesh = shape.to_open3d(clean=clean)
+    shape, info = reconstruct_points(points, normals, grid=grid, method=method, denoise=denoise, progress=progress,
+                                     **fit_options)
+    mesh = cloud_mesh(shape, info, clean=clean)
     if colors is not None:
         import open3d as o3d
 

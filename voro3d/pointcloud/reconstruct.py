@@ -8,12 +8,14 @@ winding number of the points behind it for open, one-sided scans
 (:mod:`voro3d.pointcloud.surface`), or, for walls sampled on both sides closer than the point
 spacing (where both make a lumpy solid), a shell at a small distance around the points
 (:func:`~voro3d.pointcloud.surface.sheet_surface`); the same target labels the cells.
+:func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
+(:func:`voro3d.snapping.snap_to_surface`).
 """
 from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -23,7 +25,7 @@ from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fi
 from .poisson import poisson_depth, poisson_surface
 from .surface import imls, sheet_surface, target_surface, winding_level
 
-__all__ = ["PointCloudInfo", "reconstruct_points", "auto_grid", "max_supported_grid", "transfer_colors"]
+__all__ = ["PointCloudInfo", "reconstruct_points", "cloud_mesh", "auto_grid", "max_supported_grid", "transfer_colors"]
 
 MIN_POINTS = 100
 # The VoroLoss fit of the target samples, or the learned model on the target's SDF grid.
@@ -98,25 +100,38 @@ class PointCloudInfo:
         Points given, and points removed as outliers.
     spacing, noise : float
         Median point spacing and estimated noise (standard deviation), in the input's units.
+    noisy : bool
+        Whether the fine-scale noise is over ``NOISY`` spacings.
     smoothed : bool
         Whether the noise-smoothing pass ran.
     target : str
         The target surface: ``"poisson"``, ``"imls"`` or ``"sheet"`` (module docstring).
     grid : int
         VoroMesh grid used.
+    voxel : float
+        The grid's voxel, in the input's units.
     seconds : dict
         ``clean`` (outliers, statistics), ``normals``, ``surface`` (field and proxy mesh),
         ``samples`` (sampling and projection), ``fit`` (VoroLoss fit and cell labels).
+    surface : tuple of ((v, 3) float64, (t, 3) int64)
+        The target surface as a mesh, in the input's units.
+    snap : bool
+        Whether :func:`cloud_mesh` fits the cleaned mesh to ``surface``: where the VoroMesh was
+        fitted to samples of it (not a dense clean cloud, fitted to its own points).
     """
 
     n_points: int
     n_outliers: int
     spacing: float
     noise: float
+    noisy: bool
     smoothed: bool
     target: str
     grid: int
+    voxel: float
     seconds: dict
+    surface: tuple = field(repr=False, compare=False)
+    snap: bool
 
 
 def max_supported_grid(spacing: float) -> int:
@@ -255,6 +270,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         if sheet is not None:
             target, kind, framed = sheet, "sheet", given
     _check_coverage(target, framed, widths)
+    surface_vertices = target.project(target.vertices)
     seconds["surface"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -264,7 +280,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     else:
         from ..fitting import fit_samples
 
-        samples = _fit_samples(target, framed, stats.spacing, grid, seed=fit_options.get("seed", 0))
+        samples = _fit_samples(target, surface_vertices, framed, grid, seed=fit_options.get("seed", 0))
         seconds["samples"] = time.perf_counter() - start
         start = time.perf_counter()
         shape, _ = fit_samples(samples, target.inside, grid, frame=frame, progress=progress, **fit_options)
@@ -272,11 +288,39 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         seconds["fit"] = time.perf_counter() - start
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
-                          smoothed=smoothed, target=kind, grid=grid, seconds=seconds)
+                          noisy=bool(noisy), smoothed=smoothed, target=kind, grid=grid,
+                          voxel=2.0 / (grid - 1) / frame.scale, seconds=seconds,
+                          surface=(frame.invert(surface_vertices), target.triangles), snap=not target.dense)
     return shape, info
 
 
-def _fit_samples(target, points, spacing, grid: int, *, seed: int) -> np.ndarray:
+def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True):
+    """The watertight mesh of :func:`reconstruct_points`' VoroMesh.
+
+    Parameters
+    ----------
+    shape : voro3d.VoroMesh
+    info : PointCloudInfo
+        From the same call.
+    clean : bool
+        Clean the surface (:func:`voro3d.cleaning.clean`) and, where ``info.snap``, fit its
+        vertices to the target surface (:func:`voro3d.snapping.snap_to_surface`: at most a
+        quarter voxel, no triangle flipped, thinned or crossing; smoothed where ``info.noisy``).
+
+    Returns
+    -------
+    open3d.geometry.TriangleMesh
+        Closed, manifold, outward-oriented, no crossing triangles, with vertex normals.
+    """
+    from ..snapping import NOISY_SMOOTHING, snap
+
+    mesh = shape.to_open3d(clean=clean)
+    if not (clean and info.snap):
+        return mesh
+    return snap(mesh, info.surface, voxel=info.voxel, smoothing=NOISY_SMOOTHING if info.noisy else 0.0)
+
+
+def _fit_samples(target, surface_vertices, points, grid: int, *, seed: int) -> np.ndarray:
     """The VoroLoss samples: ``150 grid^2`` of them, as a mesh fit gets.
 
     Dense clean points (``target.dense``: spacing under a third of a voxel) are exact samples
@@ -294,7 +338,7 @@ def _fit_samples(target, points, spacing, grid: int, *, seed: int) -> np.ndarray
     from ..sampling import sample_surface
 
     budget = SAMPLES_PER_FACE * grid**2
-    proxy, _ = sample_surface((target.project(target.vertices), target.triangles), budget, seed=seed)
+    proxy, _ = sample_surface((surface_vertices, target.triangles), budget, seed=seed)
     if not target.dense:
         return proxy
     if points.shape[0] > budget:
