@@ -421,7 +421,8 @@ def merge(sources, out: Path, folder: Path):
             r = dict(r, poisson=rows[key]["poisson"])
         rows[key] = r
     scans = {s["scan"]: s for run in runs for s in run["scans"]}
-    meta = dict(runs[0]["meta"], load_after=runs[-1]["meta"].get("load_after", "?"))
+    dates = " + ".join(dict.fromkeys(run["meta"]["date"] for run in runs))
+    meta = dict(runs[0]["meta"], date=f"merged runs of {dates}", load_after=runs[-1]["meta"].get("load_after", "?"))
     rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
     scans = [scans[k] for k in sorted(scans)]
     write(out, meta, rows, scans)
@@ -477,7 +478,8 @@ def main():
         scans = run_scans(SHARED / "scans", grid, picture_dir)
         meta["load_after"] = load()
         write(args.out, meta, rows, scans)
-    pictures(picture_dir, rows, scans, args.folder, args.out)
+    if not args.no_poisson:  # the pictures put both methods side by side (--merge draws them)
+        pictures(picture_dir, rows, scans, args.folder, args.out)
     print(f"wrote {args.out.with_suffix('.md')}")
 
 

@@ -255,7 +255,8 @@ def _mesh_output_options(parser, *, polygons: bool = False) -> None:
     parser.add_argument("-o", "--output", required=True, help="output mesh (.ply, .obj, .off, .stl, .glb)")
     parser.add_argument("--png", help="also render a picture here (with the input beside it where there is one)")
     parser.add_argument("--no-clean", action="store_true",
-                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning)")
+                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning; a point "
+                        "cloud's mesh is also fitted to its target surface, see voro3d.snapping)")
     if polygons:
         parser.add_argument("--polygons", type=_polygon_path,
                             help="also write the Voronoi faces as polygons, one per face, uncleaned (.ply, .obj, .off)")
