@@ -89,6 +89,10 @@ def test_shared_positions_stay_and_bad_parameters_are_named():
         snap_to_surface(vertices, triangles, sphere(), voxel=1.0, max_move=-1)
     with pytest.raises(ValueError, match="smoothing"):
         snap_to_surface(vertices, triangles, sphere(), voxel=1.0, smoothing=np.nan)
+    with pytest.raises(ValueError, match="surface has no triangles"):
+        snap_to_surface(vertices, triangles, (np.zeros((0, 3)), np.zeros((0, 3), int)), voxel=1.0)
+    with pytest.raises(ValueError, match="surface"):
+        snap_to_surface(vertices, triangles, (np.full((3, 3), np.nan), np.array([[0, 1, 2]])), voxel=1.0)
     with pytest.raises(ValueError, match="max_turn"):
         snap_to_surface(vertices, triangles, sphere(), voxel=1.0, max_turn=91)
 
