@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validate import positive_int
-from .io import mesh_arrays, ndc_frame
+from .io import mesh_arrays, ndc_frame, smallest_angles
 from .sampling import sample_surface
 
 __all__ = ["CHAMFER_FACTOR", "evaluate", "triangle_quality"]
@@ -134,12 +134,6 @@ def triangle_quality(pred, gt, *, max_angle: float = 30.0, sliver_angle: float =
     truth = gt_normals[nearest["primitive_ids"].numpy().astype(np.int64)]
     cosine = np.abs(np.einsum("ij,ij->i", normals, truth)) / np.maximum(length, 1e-300)
     off = (length == 0) | (cosine < np.cos(np.radians(max_angle)))
-    sides = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2)  # side k joins corners k and k+1
-    smallest = np.full(triangles.shape[0], 180.0)
-    for k in range(3):
-        a, b, c = sides[:, k], sides[:, (k + 1) % 3], sides[:, (k + 2) % 3]  # angle opposite side a
-        with np.errstate(invalid="ignore", divide="ignore"):
-            angle = np.degrees(np.arccos(np.clip((b**2 + c**2 - a**2) / (2 * b * c), -1, 1)))
-        smallest = np.minimum(smallest, np.nan_to_num(angle, nan=0.0))
+    smallest = smallest_angles(vertices, triangles)
     return {"off_normal_share": float(off.mean()), "sliver_share": float((smallest < sliver_angle).mean()),
             "off_normal_area_share": float(length[off].sum() / length.sum()) if length.sum() > 0 else 1.0}

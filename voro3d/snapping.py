@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .io import mesh_arrays
+from .io import mesh_arrays, smallest_angles, vertex_normals
 from .watertight import self_intersections, signed_volume
 
 __all__ = ["SnapInfo", "snap", "snap_to_surface"]
@@ -91,27 +91,12 @@ def _normals(vertices, triangles):
     return np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
 
 
-def _smallest_angles(vertices, triangles):
-    """(t,) smallest angle of each triangle, degrees (0 for a degenerate one)."""
-    corners = vertices[triangles]
-    sides = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2)
-    a, b, c = sides.T
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cosines = np.stack([(b * b + c * c - a * a) / (2 * b * c), (c * c + a * a - b * b) / (2 * c * a),
-                            (a * a + b * b - c * c) / (2 * a * b)])
-    angles = np.degrees(np.arccos(np.clip(cosines, -1.0, 1.0)))
-    return np.nan_to_num(angles, nan=0.0).min(axis=0)
-
-
 def _graph_stars(vertices, triangles):
     """(n,) bool: the vertices whose star is a graph over its mean (area-weighted) normal."""
     normals = _normals(vertices, triangles)
     n = len(vertices)
-    mean = np.stack([sum(np.bincount(triangles[:, c], normals[:, k], minlength=n) for c in range(3))
-                     for k in range(3)], axis=1)
-    length = np.linalg.norm(mean, axis=1)
-    direction = mean / np.maximum(length, 1e-300)[:, None]
-    graph = length > 0
+    direction = vertex_normals(vertices, triangles)  # zero where the star has no area
+    graph = direction.any(axis=1)
     turn = np.zeros(n)
     for c in range(3):
         at, after, before = triangles[:, c], triangles[:, (c + 1) % 3], triangles[:, (c + 2) % 3]
@@ -197,7 +182,7 @@ def snap(mesh, surface, *, voxel: float | None = None, max_move: float = MAX_MOV
 
     vertices, triangles = mesh_arrays(mesh)
     voxel = voxel_size(vertices, triangles) if voxel is None else voxel
-    vertices, _ = snap_to_surface(vertices, triangles, mesh_arrays(surface, "surface"), voxel=voxel,
+    vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=voxel,
                                   max_move=max_move, max_turn=max_turn, smoothing=smoothing)
     return to_triangle_mesh(vertices, triangles, normals=True)
 
@@ -211,7 +196,7 @@ def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: flo
     vertices : (n, 3) float64
     triangles : (t, 3) int64
         Closed, manifold, outward-oriented, no crossing triangles (a cleaned VoroMesh surface).
-    surface : (vertices, triangles)
+    surface : open3d.geometry.TriangleMesh or (vertices, triangles)
         The target surface, same units; need not be closed.
     voxel : float
         The unit of ``max_move``, in mesh units (the fit grid's voxel).
@@ -257,7 +242,7 @@ def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: flo
     moving[_star_corners(triangles, ~graph_before)] = False  # stars that are not graphs stay as they are
     wanted = int(moving.sum())
     before_normals = _normals(vertices, triangles)
-    before_angles = _smallest_angles(vertices, triangles)
+    before_angles = smallest_angles(vertices, triangles)
     min_angles = np.minimum(before_angles, MIN_ANGLE)
     cos_turn = np.cos(np.radians(max_turn))
 
@@ -274,7 +259,7 @@ def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: flo
             normals = _normals(result, triangles)
             cosine = np.einsum("ij,ij->i", before_normals, normals)
             bad = (cosine <= cos_turn * np.linalg.norm(before_normals, axis=1) * np.linalg.norm(normals, axis=1)) \
-                | (_smallest_angles(result, triangles) < min_angles)
+                | (smallest_angles(result, triangles) < min_angles)
             corners = np.concatenate([triangles[bad].reshape(-1),
                                       _star_corners(triangles, ~_graph_stars(result, triangles))])
             corners = corners[moving[corners]]
