@@ -3,8 +3,9 @@
 The VoroMesh of a point cloud follows its smooth target surface only as closely as its Voronoi
 faces allow: the cleaned surface keeps small facets tilted where the fit could not settle. Here
 the vertices move (at most ``max_move`` voxels) so that the surface fits the target in least
-squares: damped Gauss-Newton steps on the residuals (nearest target point minus point) at the
-vertices and at ``FACE_POINTS`` of every triangle, each vertex moved by its own normal equations,
+squares: damped Gauss-Newton steps on the residuals (nearest target point minus point, its
+part along the target's normal between nearest-point queries) at the vertices and at
+``FACE_POINTS`` of every triangle, each vertex moved by its own normal equations,
 with an optional pull towards the mean of its neighbours (``smoothing``, for noisy targets).
 Fitting faces, not just vertices, keeps the faces straddling the target as the VoroLoss fit left
 them: moving the vertices onto the target instead lays the faces inside its convex parts (their
@@ -46,6 +47,11 @@ MIN_ANGLE = 5.0  # degrees: the sliver angle of metrics.triangle_quality
 FACE_POINTS = np.array([[1, 1, 1], [4, 1, 1], [1, 4, 1], [1, 1, 4]]) / np.array([[3.0], [6.0], [6.0], [6.0]])
 ITERATIONS = 6
 DAMPING = 0.7
+# Nearest points are queried every QUERY_EVERY steps; the steps between keep those points and fit
+# the planes of their target triangles (ICP's point-to-plane). The queries were three quarters of
+# the time; on 6 dev meshes at 64^3 and 12 dev clouds the fit is 1.4-1.7 times faster with CD,
+# NC and off-normal shares within 0.1% (querying once: CD +0.6% on noisy clouds).
+QUERY_EVERY = 3
 # The smoothing weight for a noisy cloud's target, which carries the noise's bumps. Ten clouds of
 # four dev shapes at 0.25-1% noise, against none: triangles more than 30 degrees off the true normal
 # fewer on all (at 0.5%: 16.0/7.1/20.4/10.2% -> 11.8/4.2/17.8/6.1%), CD 1-8% lower, NC and F1
@@ -124,6 +130,8 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float):
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.asarray(surface[0], np.float32)),
                         o3d.core.Tensor(np.asarray(surface[1], np.uint32)))
+    planes = _normals(*surface)
+    planes /= np.maximum(np.linalg.norm(planes, axis=1), 1e-300)[:, None]
     n = len(vertices)
     # A vertex's weight in each face point is its barycentric coordinate there: its normal
     # equations sum the residuals times those, over the sum of their squares.
@@ -135,10 +143,15 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float):
     adjacency = ((adjacency + adjacency.T) > 0).astype(np.float64)
     neighbours = np.asarray(adjacency.sum(axis=1)).ravel()
     fitted = vertices.copy()
-    for _ in range(ITERATIONS):
+    for step in range(ITERATIONS):
         points = np.vstack([fitted, np.einsum("bk,tkd->tbd", FACE_POINTS, fitted[triangles]).reshape(-1, 3)])
-        nearest = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))["points"].numpy()
-        residual = nearest.astype(np.float64) - points
+        if step % QUERY_EVERY == 0:
+            answer = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+            nearest = answer["points"].numpy().astype(np.float64)
+            normal = planes[answer["primitive_ids"].numpy().astype(np.int64)]
+            residual = nearest - points
+        else:
+            residual = np.einsum("ij,ij->i", nearest - points, normal)[:, None] * normal
         face_residual = residual[n:].reshape(len(triangles), len(FACE_POINTS), 3)
         pull = residual[:n].copy()
         for c in range(3):
