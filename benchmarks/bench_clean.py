@@ -8,7 +8,8 @@ and NC (:func:`voro3d.metrics.evaluate`), the share of triangles more than 30 de
 true normal and the share of slivers, smallest angle under 5 degrees
 (:func:`voro3d.metrics.triangle_quality`), faces, and the full watertight check (exact crossing
 test). The cleaned surface is also measured against the uncleaned one: sampled distances both ways
-(in voxels, beside the bound ``clean`` guarantees) and the volume change. Clean time (wall
+(in voxels, beside the bound ``clean`` guarantees) and the volume change. *output* is what the mesh
+paths return: the cleaned surface fitted to the input (:func:`voro3d.snapping.snap_to_surface`). Clean time (wall
 and CPU) is compared with the fit's, measured in the same process with ``--refit``; the clean's
 peak memory is the process's peak RSS during the clean (reset through ``/proc/self/clear_refs``
 before it, after handing freed heap back with ``malloc_trim``), and its rise over the RSS before. Each shape runs in its own process.
@@ -17,8 +18,8 @@ before it, after handing freed heap back with ``malloc_trim``), and its rise ove
 makes them (``CLOUD_CONDITIONS`` of its conditions) from ``CLOUD_SHAPES``, reconstructed by
 :func:`voro3d.pointcloud.reconstruct_points` (grid auto), their surface before and after the clean,
 Marching Cubes of the true mesh at the same grid beside them. Also the surface the library
-returns (:func:`voro3d.pointcloud.cloud_mesh`: the cleaned one, snapped onto the target surface on
-noisy clouds) and Marching Cubes of the cloud's own target surface at the same grid: the
+returns (:func:`voro3d.pointcloud.cloud_mesh`: the cleaned one, fitted to the target surface,
+smoothed on noisy clouds) and Marching Cubes of the cloud's own target surface at the same grid: the
 comparison with the same information (noise, holes) that the true mesh does not have.
 
 Writes ``benchmarks/results/clean_<grids>.{md,json}`` (``clean_clouds`` with ``--clouds``) and a
@@ -41,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "data" / "dev"
 CACHE = ROOT / "out" / "bench_clean"
-SURFACES = ("uncleaned", "cleaned", "snapped", "mc")
+SURFACES = ("uncleaned", "cleaned", "output", "mc")
 CLOUD_SURFACES = ("uncleaned", "cleaned", "output", "mc", "mc_target", "poisson")
 PICTURED = ("cad_fandisk.obj", "organic_bunny.off", "cad_rocker-arm.obj")
 CLOUD_SHAPES = ("organic_bunny.off", "cad_fandisk.obj", "organic_armadillo.obj", "cad_rocker-arm.obj")
@@ -170,7 +171,7 @@ def _one(path, grid, refit, queue):
         shape, fit = _fitted(path, grid, refit)
         surfaces, info, timing = _surfaces(source, shape, grid, fit["open_input"])
         start = time.perf_counter()
-        surfaces["snapped"] = mesh_arrays(snap(surfaces["cleaned"], source, voxel=info.voxel))
+        surfaces["output"] = mesh_arrays(snap(surfaces["cleaned"], source, voxel=info.voxel))
         timing["snap_seconds"] = time.perf_counter() - start
         row = dict(shape=path.name, grid=grid, status="ok", **fit, **timing,
                    clean_time_ratio=timing["clean_seconds"] / fit["fit_seconds"],
@@ -180,7 +181,7 @@ def _one(path, grid, refit, queue):
         row.update(_scores(surfaces, source, info))
         row["voxel_estimate_ratio"] = info.voxel / _grid_voxel(source, grid)
         if path.name in PICTURED:
-            for name in ("uncleaned", "cleaned"):
+            for name in ("uncleaned", "cleaned", "output"):
                 save_mesh(to_triangle_mesh(*surfaces[name]), CACHE / f"{path.stem}_{grid}_{name}.ply")
         queue.put(row)
     except Exception as error:  # one bad shape is recorded, not fatal
@@ -220,11 +221,11 @@ def _one_cloud(path, condition, queue):
                    **timing)
         row.update(_scores(surfaces, source, info))
         # The output against the uncleaned surface, in the grid's voxels: the clean's bound, plus the
-        # snap's largest move where it snapped.
+        # snap's largest move where it snapped (both in the clean's estimated voxel).
         to_input = _distances_voxels(surfaces["output"], surfaces["uncleaned"], cloud_info.voxel)
         from_input = _distances_voxels(surfaces["uncleaned"], surfaces["output"], cloud_info.voxel)
         row.update(output_distance_max=float(max(to_input.max(), from_input.max())),
-                   output_distance_bound=(info.max_distance + SNAP_MAX_MOVE * cloud_info.voxel * cloud_info.snap)
+                   output_distance_bound=(info.max_distance + SNAP_MAX_MOVE * info.voxel * cloud_info.snap)
                    / cloud_info.voxel)
         row["voxel_estimate_ratio"] = info.voxel / _grid_voxel(source, cloud_info.grid)
         queue.put(row)
@@ -266,14 +267,18 @@ def _summary(rows, grid):
         out[f"{key}_change_mean"], out[f"{key}_change_worst"] = float(np.mean(change)), float(
             max(change) if key == "chamfer_x1e5" else min(change))
     out["off_normal_above_mc"] = int(sum(r["cleaned"]["off_normal_share"] > r["mc"]["off_normal_share"] for r in ok))
-    out["snapped_off_normal_above_mc"] = int(sum(r["snapped"]["off_normal_share"] > r["mc"]["off_normal_share"]
-                                                 for r in ok))
-    snapped_change = [r["snapped"]["chamfer_x1e5"] / r["cleaned"]["chamfer_x1e5"] - 1 for r in ok]
-    out["snapped_cd_change_mean"], out["snapped_cd_change_worst"] = float(np.mean(snapped_change)), float(
-        max(snapped_change))
-    out["snapped_nc_change_worst"] = float(min(r["snapped"]["nc"] - r["cleaned"]["nc"] for r in ok))
+    out["output_off_normal_above_mc"] = int(sum(r["output"]["off_normal_share"] > r["mc"]["off_normal_share"]
+                                                for r in ok))
+    for key, against in (("cleaned", "cleaned"), ("uncleaned", "uncleaned")):
+        change = [r["output"]["chamfer_x1e5"] / r[against]["chamfer_x1e5"] - 1 for r in ok]
+        out[f"output_cd_change_{key}_mean"], out[f"output_cd_change_{key}_worst"] = float(np.mean(change)), float(
+            max(change))
+    out["output_nc_change_worst"] = float(min(r["output"]["nc"] - r["cleaned"]["nc"] for r in ok))
+    out["output_slivers_max"] = float(max(r["output"]["sliver_share"] for r in ok))
     out["snap_seconds_mean"] = float(np.mean([r["snap_seconds"] for r in ok]))
     out["snap_time_ratio_max"] = float(max(r["snap_time_ratio"] for r in ok))
+    both = [r["clean_time_ratio"] + r["snap_time_ratio"] for r in ok]
+    out["clean_snap_time_ratio_mean"], out["clean_snap_time_ratio_max"] = float(np.mean(both)), float(max(both))
     out["slivers_max"] = float(max(r["cleaned"]["sliver_share"] for r in ok))
     out["off_normal_max"] = float(max(r["cleaned"]["off_normal_share"] for r in ok))
     out["clean_seconds_mean"] = float(np.mean([r["clean_seconds"] for r in ok]))
@@ -309,8 +314,9 @@ def write_tables(rows, grids, out: Path):
              "Watertight: closed, manifold, oriented, positive volume, no crossing triangles (exact). Distances "
              "between the cleaned and uncleaned surfaces: 100k samples each way, in the voxels `clean` estimated "
              "(`voxel_size`; their ratio to the grid's voxel beside them), against the bound it guarantees. "
-             "*snapped*: the cleaned surface fitted to the input (`voro3d.snap(cleaned, input)`; not part of "
-             "`clean`, and not applied by the mesh paths).", "",
+             "*output*: what the mesh paths return (`reconstruct`, `voro3d fit`, `run_batch`: "
+             "`VoroMesh.to_open3d(surface=input)`), the cleaned surface fitted to the input "
+             "(`voro3d.snapping.snap_to_surface`, not part of `clean`).", "",
              "| grid | shapes | surface | " + " | ".join(name for name, _, _ in METRICS) + " | watertight % |",
              "|---|---|---|" + "---|" * len(METRICS) + "---|"]
     for s in summaries:
@@ -340,23 +346,27 @@ def write_tables(rows, grids, out: Path):
             f"{s['distance_max']:.3f} / {s['distance_bound']:.2f} | "
             f"{s['voxel_estimate_ratio_min']:.2f}-{s['voxel_estimate_ratio_max']:.2f} | "
             f"{s['volume_change_max']:.2e} | {s['rounds_max']} |")
-    lines += ["", "| grid | snapped: CD change against cleaned (mean, worst) | NC change (worst) | "
-              "shapes off-normal above MC | snap s (mean) | snap / fit wall (max) |", "|---|---|---|---|---|---|"]
+    lines += ["", "| grid | output: CD change against cleaned (mean, worst) | against uncleaned (mean, worst) | "
+              "NC change against cleaned (worst) | slivers max | shapes off-normal above MC | snap s (mean) | "
+              "snap / fit wall (max) | clean + snap / fit wall (mean, max) |", "|---|---|---|---|---|---|---|---|---|"]
     for s in summaries:
         if s["shapes"]:
-            lines.append(f"| {s['grid']} | {s['snapped_cd_change_mean']:+.2%}, {s['snapped_cd_change_worst']:+.2%} | "
-                         f"{s['snapped_nc_change_worst']:+.4f} | {s['snapped_off_normal_above_mc']} | "
-                         f"{s['snap_seconds_mean']:.2f} | {s['snap_time_ratio_max']:.1%} |")
+            lines.append(f"| {s['grid']} | {s['output_cd_change_cleaned_mean']:+.2%}, "
+                         f"{s['output_cd_change_cleaned_worst']:+.2%} | {s['output_cd_change_uncleaned_mean']:+.2%}, "
+                         f"{s['output_cd_change_uncleaned_worst']:+.2%} | {s['output_nc_change_worst']:+.4f} | "
+                         f"{s['output_slivers_max']:.1%} | {s['output_off_normal_above_mc']} | "
+                         f"{s['snap_seconds_mean']:.2f} | {s['snap_time_ratio_max']:.1%} | "
+                         f"{s['clean_snap_time_ratio_mean']:.1%}, {s['clean_snap_time_ratio_max']:.1%} |")
     lines += ["", "## Per shape", "",
               "| shape | grid | faces before -> after | off-normal % unclean / clean / MC | slivers % unclean / "
               "clean | CD unclean / clean | F1 unclean / clean | NC unclean / clean | clean s | fit s | "
-              "watertight | rounds | snapped: off-normal % / CD / NC / s |",
+              "watertight | rounds | output: off-normal % / CD / NC / s |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
             lines.append(f"| {r['shape']} | {r['grid']} | failed: {r['error']} |" + " |" * 10)
             continue
-        p = r["snapped"]
+        p = r["output"]
         lines.append(f"| {r['shape']}{' *' if r['open_input'] else ''} | {r['grid']} | {_before_after_cells(r)} | "
                      f"{r['fit_seconds']:.1f} | {r['cleaned']['watertight'] and p['watertight']} | "
                      f"{r['clean']['rounds']} | {p['off_normal_share']:.1%} / {p['chamfer_x1e5']:.3f} / {p['nc']:.3f} / "
@@ -396,8 +406,9 @@ def write_cloud_tables(rows, out: Path):
              "`voro3d.pointcloud.reconstruct_points` (grid auto); metrics as in `clean_32_64.md`, against the "
              "mesh the cloud was sampled from; Marching Cubes of that mesh's SDF at the same grid, and Open3D's "
              "Poisson pipeline on the same cloud (as `bench_pointcloud.py` runs it, the better depth), for reference. "
-             "*output*: what `voro3d.reconstruct` returns (`voro3d.pointcloud.cloud_mesh`: the cleaned surface, snapped "
-             "onto the target surface on noisy clouds). *mc_target*: Marching Cubes of the cloud's own target surface "
+             "*output*: what `voro3d.reconstruct` returns (`voro3d.pointcloud.cloud_mesh`: the cleaned surface fitted "
+             "to the target surface, smoothed on noisy clouds; the target bilateral-filtered where the noise is "
+             "heavy). *mc_target*: Marching Cubes of the cloud's own target surface "
              "(the smooth surface the VoroMesh is fitted to) at the same grid, which has the noise and the hole "
              "fills the cloud leaves and the true mesh does not.",
              "", "| surface | clouds | " + " | ".join(name for name, _, _ in METRICS) + " | watertight % |",
@@ -438,7 +449,7 @@ def write_cloud_tables(rows, out: Path):
 
 
 def picture(rows, out_png: Path, folder: Path):
-    """Input, uncleaned and cleaned side by side for the pictured shapes, one row each."""
+    """Input, uncleaned, cleaned and output side by side for the pictured shapes, one row each."""
     from figures import render_rows
 
     from voro3d.io import load_mesh
@@ -449,10 +460,10 @@ def picture(rows, out_png: Path, folder: Path):
             continue
         stem = Path(r["shape"]).stem
         meshes = [load_mesh(folder / r["shape"])] + [
-            load_mesh(CACHE / f"{stem}_{r['grid']}_{name}.ply", weld=False) for name in ("uncleaned", "cleaned")]
+            load_mesh(CACHE / f"{stem}_{r['grid']}_{name}.ply", weld=False) for name in ("uncleaned", "cleaned", "output")]
         titles = [f"{stem} (input)",
                   f"VoroMesh {r['grid']}^3: {r['uncleaned']['n_triangles']} faces",
-                  f"cleaned: {r['cleaned']['n_triangles']} faces"]
+                  f"cleaned: {r['cleaned']['n_triangles']} faces", "output: cleaned, fitted to the input"]
         figure.append((meshes, titles))
     render_rows(figure, out_png, size=(420, 360))
 

@@ -421,7 +421,9 @@ def merge(sources, out: Path, folder: Path):
             r = dict(r, poisson=rows[key]["poisson"])
         rows[key] = r
     scans = {s["scan"]: s for run in runs for s in run["scans"]}
-    dates = " + ".join(dict.fromkeys(run["meta"]["date"] for run in runs))
+    # A merged file's date is already a list of runs: flatten it.
+    dates = " + ".join(dict.fromkeys(date for run in runs
+                                     for date in run["meta"]["date"].removeprefix("merged runs of ").split(" + ")))
     meta = dict(runs[0]["meta"], date=f"merged runs of {dates}", load_after=runs[-1]["meta"].get("load_after", "?"))
     rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
     scans = [scans[k] for k in sorted(scans)]

@@ -127,3 +127,23 @@ def test_smoothing_pulls_a_bumpy_fit_flat():
         assert info.moved > 0.9 * len(vertices)
         spread[smoothing] = np.linalg.norm(snapped, axis=1).std()
     assert spread[1.0] < 0.7 * spread[0.0]  # measured 0.0054 against 0.0110
+
+
+def test_mesh_paths_return_the_surface_fitted_to_their_input():
+    import voro3d
+    from voro3d.metrics import triangle_quality
+    from voro3d.shapes import example_mesh
+
+    source = example_mesh("torus")
+    shape, _ = voro3d.fit(source, grid=20, steps=150, seed=0)
+    cleaned, fitted = shape.to_open3d(), shape.to_open3d(surface=source)
+    assert np.array_equal(np.asarray(fitted.triangles), np.asarray(cleaned.triangles))
+    assert not np.array_equal(np.asarray(fitted.vertices), np.asarray(cleaned.vertices))
+    report = check_watertight(fitted)
+    assert report.watertight and report.self_intersecting_pairs == 0
+    assert triangle_quality(fitted, source)["off_normal_share"] < 0.7 * triangle_quality(cleaned, source)["off_normal_share"]
+    returned = voro3d.reconstruct(source, grid=20, steps=150, seed=0)
+    assert np.array_equal(np.asarray(returned.vertices), np.asarray(fitted.vertices))
+    # Unclean means the Voronoi faces as they are: no surface to fit them to.
+    raw = voro3d.reconstruct(source, grid=20, steps=150, seed=0, clean=False)
+    assert np.array_equal(np.asarray(raw.vertices), np.asarray(shape.to_open3d(clean=False).vertices))

@@ -32,7 +32,7 @@ def _fit(args) -> None:
     source = load_mesh(args.mesh)
     shape, _ = fit(source, grid=args.grid, steps=args.steps, seed=args.seed, device=args.device,
                    progress=not args.quiet)
-    mesh = shape.to_open3d(clean=not args.no_clean)
+    mesh = shape.to_open3d(clean=not args.no_clean, surface=source)
     save_mesh(mesh, args.output)
     _maybe_save_polygons(args, shape)
     if args.save_generators:
@@ -58,7 +58,7 @@ def _predict(args) -> None:
         reference = load_mesh(source)
         shape = predictor.predict_from_mesh(reference, 32 if args.grid is None else args.grid,
                                             fallback=not args.no_fallback)
-    mesh = shape.to_open3d(clean=not args.no_clean)
+    mesh = shape.to_open3d(clean=not args.no_clean, surface=reference)
     save_mesh(mesh, args.output)
     _maybe_save_polygons(args, shape)
     panels = [mesh] if reference is None else [reference, mesh]
@@ -255,8 +255,8 @@ def _mesh_output_options(parser, *, polygons: bool = False) -> None:
     parser.add_argument("-o", "--output", required=True, help="output mesh (.ply, .obj, .off, .stl, .glb)")
     parser.add_argument("--png", help="also render a picture here (with the input beside it where there is one)")
     parser.add_argument("--no-clean", action="store_true",
-                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning; a point "
-                        "cloud's mesh is also fitted to its target surface, see voro3d.snapping)")
+                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning, then "
+                        "fitted to the input mesh or the cloud's target surface, see voro3d.snapping)")
     if polygons:
         parser.add_argument("--polygons", type=_polygon_path,
                             help="also write the Voronoi faces as polygons, one per face, uncleaned (.ply, .obj, .off)")

@@ -32,7 +32,7 @@ def run(out: Path, *, shape: str = "bracket", grid: int = 32, progress: bool = F
     save_mesh(source, out / f"{shape}_input.ply")
 
     start = time.perf_counter()
-    voromesh = fit(source, grid=grid, progress=progress)[0].to_open3d()
+    voromesh = fit(source, grid=grid, progress=progress)[0].to_open3d(surface=source)
     fit_seconds = time.perf_counter() - start
     save_mesh(voromesh, out / f"{shape}_voromesh.ply")
 

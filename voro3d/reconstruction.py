@@ -50,9 +50,10 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         (default) turns it on when the estimated fine-scale noise exceeds 0.13 point spacings,
         and for sparse one-sided scans; True or False force it. Meshes: must stay None.
     clean : bool
-        Remove slivers, tiny faces and nearly coincident vertices (:func:`voro3d.cleaning.clean`,
-        every guarantee kept) and, on a noisy cloud, snap the vertices onto the smooth target
-        surface (:func:`voro3d.pointcloud.cloud_mesh`); ``False`` keeps the Voronoi faces as they are.
+        Remove slivers, tiny faces and nearly coincident vertices (:func:`voro3d.cleaning.clean`),
+        then fit the vertices, at most a quarter voxel each, to the input mesh or the cloud's
+        smooth target surface (:func:`voro3d.snapping.snap_to_surface`), every guarantee kept;
+        ``False`` keeps the Voronoi faces as they are.
     progress : bool
         Show a progress bar over the fit's steps (the learned method has no loop to show).
 
@@ -86,10 +87,10 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         if method == "fit":
             from .fitting import fit
 
-            return fit(data, grid, progress=progress, **fit_options)[0].to_open3d(clean=clean)
+            return fit(data, grid, progress=progress, **fit_options)[0].to_open3d(clean=clean, surface=data)
         from .infer import predict_from_mesh
 
-        return predict_from_mesh(data, grid).to_open3d(clean=clean)
+        return predict_from_mesh(data, grid).to_open3d(clean=clean, surface=data)
     from .pointcloud import cloud_mesh, reconstruct_points, transfer_colors
 
     points, normals, colors = data

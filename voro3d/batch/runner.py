@@ -238,7 +238,8 @@ def add_batch_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--format", choices=[suffix[1:] for suffix in MESH_SUFFIXES], default="ply",
                         help="output format (default ply)")
     parser.add_argument("--no-clean", action="store_true",
-                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning)")
+                        help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning, then "
+                        "fitted to the input mesh, see voro3d.snapping)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary table")
     parser.set_defaults(run=_run_command)
     return parser

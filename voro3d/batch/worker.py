@@ -52,7 +52,7 @@ def process_shape(task: ShapeTask) -> dict:
         with _memory_cap(task.memory_limit_mb):
             source = load_mesh(task.source)
             mesh = _reconstruct(source, task.method, grid=task.grid, steps=task.steps, seed=task.seed,
-                                model=task.model, threads=task.threads).to_open3d(clean=task.clean)
+                                model=task.model, threads=task.threads).to_open3d(clean=task.clean, surface=source)
             report = check_watertight(mesh, self_intersection=False).as_dict()
             result.update(n_vertices=report["n_vertices"], n_faces=report["n_triangles"], watertight=report)
             if not report["watertight"]:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .denoise import bilateral_filter
 from .surface import supported_pieces
 
 __all__ = ["PoissonSurface", "poisson_surface", "poisson_depth"]
@@ -82,7 +83,8 @@ class PoissonSurface:
         return np.asarray(queries, np.float64)
 
 
-def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int) -> PoissonSurface:
+def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
+                    filter_width: float | None = None) -> PoissonSurface:
     """Screened Poisson surface of oriented points, without its unsupported pieces.
 
     Parameters
@@ -91,6 +93,9 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int) -> Pois
         Fit frame, unit outward normals.
     depth : int
         Octree depth (:func:`poisson_depth`).
+    filter_width : float, optional
+        Bilateral normal filtering of the mesh at this spatial width, fit frame
+        (:func:`~voro3d.pointcloud.denoise.bilateral_filter`), for heavily noisy points.
 
     Returns
     -------
@@ -114,6 +119,8 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int) -> Pois
     if triangles.shape[0] == 0:
         raise ValueError("screened Poisson found no surface in the points")
     vertices, triangles = _supported_pieces(vertices, triangles, points)
+    if filter_width is not None:
+        vertices = bilateral_filter(vertices, triangles, width=filter_width)
     return PoissonSurface(vertices, triangles, resolution=2**depth)
 
 

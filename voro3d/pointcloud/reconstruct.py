@@ -49,6 +49,14 @@ MIN_NORMAL_AGREEMENT = 0.6
 # Fine-scale noise above this share of the spacing turns on the smoothing pass (denoise=None):
 # clean dev clouds read under 0.075, 0.25% noise and more at least 0.19.
 NOISY = 0.13
+# Noise over this many cells of the Poisson octree (2 / 2^depth in the fit frame; four dev shapes,
+# 20k points: 0.61-0.66 at 0.25% of the diagonal, 1.06-1.09 at 0.5%, 1.46-1.59 at 1%) leaves bumps
+# the target resolves: it is bilateral-filtered (pointcloud.denoise) over FILTER_WIDTH_PER_NOISE
+# noise deviations. On the four at 0.5% and 1% noise: CD 3-15% lower but armadillo at 0.5% (+0.7%),
+# triangles over 30 degrees off the true normal 10.0% -> 8.9% (0.5%) and 23.1% -> 18.3% (1%), NC
+# +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 2-10% on three, hence the gate.
+HEAVY_NOISE = 0.85
+FILTER_WIDTH_PER_NOISE = 2.0
 # grid="auto": voxels about this many median spacings wide, within these bounds.
 AUTO_SPACINGS_PER_VOXEL = 2.5
 AUTO_GRID_RANGE = (32, 64)
@@ -104,6 +112,8 @@ class PointCloudInfo:
         Whether the fine-scale noise is over ``NOISY`` spacings.
     smoothed : bool
         Whether the noise-smoothing pass ran.
+    filtered : bool
+        Whether the Poisson target was bilateral-filtered (noise over ``HEAVY_NOISE`` octree cells).
     target : str
         The target surface: ``"poisson"``, ``"imls"`` or ``"sheet"`` (module docstring).
     grid : int
@@ -126,6 +136,7 @@ class PointCloudInfo:
     noise: float
     noisy: bool
     smoothed: bool
+    filtered: bool
     target: str
     grid: int
     voxel: float
@@ -157,7 +168,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        (a second pass where they mostly agree, ``MIN_NORMAL_AGREEMENT``), then moves the points
        onto the smooth surface and replaces their normals with the field's.
     4. The target, without the pieces the points do not support: screened Poisson when the
-       points enclose a volume (their winding level is over ``CLOSED_LEVEL``); for an open,
+       points enclose a volume (their winding level is over ``CLOSED_LEVEL``; bilateral-filtered
+       where the noise is over ``HEAVY_NOISE`` octree cells, :mod:`~voro3d.pointcloud.denoise`); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
        on a grid twice as fine as the VoroMesh grid, meshed by Marching Cubes.
     5. The VoroLoss samples: ``150 grid^2`` of them from the target mesh, or, for a dense scan,
@@ -180,7 +192,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         As in :func:`voro3d.fit`.
     denoise : bool or None
         The smoothing pass of step 3: None turns it on above ``NOISY`` spacings of estimated
-        fine-scale noise, and for sparse one-sided scans; True or False force it.
+        fine-scale noise, and for sparse one-sided scans; True or False force it. The target's
+        filtering (step 4) needs it on.
 
     Returns
     -------
@@ -257,7 +270,10 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
             value, gradient = imls(framed, gradient, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
-    target = poisson_surface(framed, normals, poisson_depth(grid)) if closed else None
+    depth = poisson_depth(grid)
+    filtered = smoothed and noisy and stats.noise > HEAVY_NOISE * 2.0 / 2**depth  # denoise=False: neither
+    target = poisson_surface(framed, normals, depth,
+                             filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None) if closed else None
     if target is not None and target.escape(framed) > MAX_POISSON_ESCAPE:
         # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
         target = None
@@ -288,7 +304,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         seconds["fit"] = time.perf_counter() - start
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
-                          noisy=bool(noisy), smoothed=smoothed, target=kind, grid=grid,
+                          noisy=bool(noisy), smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
+                          target=kind, grid=grid,
                           voxel=2.0 / (grid - 1) / frame.scale, seconds=seconds,
                           surface=(frame.invert(surface_vertices), target.triangles), snap=not target.dense)
     return shape, info
@@ -312,12 +329,10 @@ def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True):
     open3d.geometry.TriangleMesh
         Closed, manifold, outward-oriented, no crossing triangles, with vertex normals.
     """
-    from ..snapping import NOISY_SMOOTHING, snap
+    from ..snapping import NOISY_SMOOTHING
 
-    mesh = shape.to_open3d(clean=clean)
-    if not (clean and info.snap):
-        return mesh
-    return snap(mesh, info.surface, voxel=info.voxel, smoothing=NOISY_SMOOTHING if info.noisy else 0.0)
+    return shape.to_open3d(clean=clean, surface=info.surface if info.snap else None,
+                           smoothing=NOISY_SMOOTHING if info.noisy else 0.0)
 
 
 def _fit_samples(target, surface_vertices, points, grid: int, *, seed: int) -> np.ndarray:

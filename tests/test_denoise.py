@@ -1,0 +1,44 @@
+"""Bilateral normal filtering: noisy flat faces come out flat, sharp edges stay sharp."""
+import numpy as np
+import open3d as o3d
+
+from voro3d.io import mesh_arrays
+from voro3d.pointcloud.denoise import bilateral_filter
+
+
+def noisy_cube(noise=0.01, subdivisions=4):
+    """A unit cube of ~3k triangles, its vertices moved along random directions by ``noise``."""
+    mesh = o3d.geometry.TriangleMesh.create_box().subdivide_midpoint(subdivisions)
+    vertices, triangles = mesh_arrays(mesh)
+    rng = np.random.default_rng(0)
+    return vertices, vertices + rng.normal(scale=noise, size=vertices.shape), triangles
+
+
+def off_axis_degrees(vertices, triangles):
+    """(t,) angle of each face normal to the nearest axis direction (the cube's true normals)."""
+    corners = vertices[triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    return np.degrees(np.arccos(np.clip(np.abs(normals).max(axis=1), -1, 1)))
+
+
+def test_noisy_cube_faces_come_out_flat_and_its_edges_sharp():
+    true, noisy, triangles = noisy_cube()
+    filtered = bilateral_filter(noisy, triangles, width=0.05)
+    before, after = off_axis_degrees(noisy, triangles), off_axis_degrees(filtered, triangles)
+    assert np.median(after) < 0.3 * np.median(before)  # flat faces
+    assert (after > 30).mean() < 0.5 * (before > 30).mean() + 1e-9
+    # Sharp edges and corners: the cube's corners stay within the noise of where they were, where
+    # Laplacian smoothing would round them off.
+    corner = np.all(np.isin(true, (0.0, 1.0)), axis=1)
+    assert np.abs(filtered[corner] - true[corner]).max() < 0.05
+    # No shrinking: the box of the vertices stays the unit cube's.
+    assert np.abs(np.ptp(filtered, axis=0) - 1).max() < 0.05
+
+
+def test_a_clean_mesh_stays_where_it_is():
+    # Faces at right angles weigh exp(-1 / 0.35^2) = 3e-4 in each other's normal: the vertices near
+    # the edges move by under 1e-4 of the cube (measured 8.5e-5).
+    true, _, triangles = noisy_cube()
+    moved = np.linalg.norm(bilateral_filter(true, triangles, width=0.05) - true, axis=1)
+    assert moved.max() < 2e-4
