@@ -9,8 +9,10 @@ part along the target's normal between nearest-point queries) at the vertices an
 with an optional pull towards the mean of its neighbours (``smoothing``, for noisy targets).
 Fitting faces, not just vertices, keeps the faces straddling the target as the VoroLoss fit left
 them: moving the vertices onto the target instead lays the faces inside its convex parts (their
-sagitta), which cost 2-7% CD on clean dev clouds. Measured on 16 dev clouds
-(``benchmarks/bench_clean.py --clouds``): see ``benchmarks/results/clean_clouds.md``.
+sagitta), which cost 2-7% CD on clean dev clouds. Every path that knows what a shape approximates
+applies it after the clean (``VoroMesh.to_open3d(surface=...)``). Measured on 38 dev meshes and 16
+dev clouds (``benchmarks/bench_clean.py [--clouds]``): ``benchmarks/results/clean_32_64.md`` and
+``clean_clouds.md``, the *output* rows.
 
 A vertex moves only where nothing breaks, else it stays where it was, with the corners of the
 triangles that would break:
@@ -189,6 +191,7 @@ def snap(mesh, surface, *, voxel: float | None = None, max_move: float = MAX_MOV
     --------
     >>> shape, _ = voro3d.fit(mesh, grid=32)  # doctest: +SKIP
     >>> fitted = voro3d.snap(shape.to_open3d(), mesh)  # doctest: +SKIP
+    >>> fitted = shape.to_open3d(surface=mesh)  # the same at extraction (what reconstruct does)  # doctest: +SKIP
     """
     from .cleaning import voxel_size
     from .io import to_triangle_mesh
