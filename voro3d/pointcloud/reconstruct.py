@@ -54,7 +54,7 @@ NOISY = 0.13
 # the target resolves: it is bilateral-filtered (pointcloud.denoise) over FILTER_WIDTH_PER_NOISE
 # noise deviations. On the four at 0.5% and 1% noise: CD 3-15% lower but armadillo at 0.5% (+0.7%),
 # triangles over 30 degrees off the true normal 10.0% -> 8.9% (0.5%) and 23.1% -> 18.3% (1%), NC
-# +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 2-10% on three, hence the gate.
+# +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 4-10% on three, hence the gate.
 HEAVY_NOISE = 0.85
 FILTER_WIDTH_PER_NOISE = 2.0
 # grid="auto": voxels about this many median spacings wide, within these bounds.
