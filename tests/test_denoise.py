@@ -42,3 +42,9 @@ def test_a_clean_mesh_stays_where_it_is():
     true, _, triangles = noisy_cube()
     moved = np.linalg.norm(bilateral_filter(true, triangles, width=0.05) - true, axis=1)
     assert moved.max() < 2e-4
+
+
+def test_a_mesh_smaller_than_the_neighbourhood_is_filtered_too():
+    vertices, triangles = mesh_arrays(o3d.geometry.TriangleMesh.create_tetrahedron())
+    assert np.allclose(bilateral_filter(vertices, triangles[:1], width=1.0, neighbours=64), vertices)
+    assert np.isfinite(bilateral_filter(vertices, triangles, width=1.0)).all()

@@ -60,7 +60,8 @@ def bilateral_filter(vertices, triangles, *, width: float, normal_width: float =
     vertices = np.array(vertices, np.float64)
     triangles = np.asarray(triangles, np.int64)
     centroids, normals, areas = _face_frames(vertices, triangles)
-    distance, near = cKDTree(centroids).query(centroids, k=min(neighbours, len(triangles)))
+    k = min(neighbours, len(triangles))
+    distance, near = (found.reshape(len(triangles), k) for found in cKDTree(centroids).query(centroids, k=k))
     spatial = (np.exp(-0.5 * (distance / width) ** 2) * areas[near]).astype(np.float32)
     # float32: the gathered (t, k, 3) normals dominate the time and memory.
     filtered = normals.astype(np.float32)
