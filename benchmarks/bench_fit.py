@@ -1,9 +1,12 @@
 """VoroMesh direct fit vs Marching Cubes and Dual Contouring, with the paper's metrics.
 
 For every mesh of a folder (default ``../shared/data/dev``, else the bundled examples) and
-every grid: fit a VoroMesh; build MC and DC from the same normalised SDF grid; score all
-three against the input (CD x1e5, F1 at 0.003, NC, in the NDC frame of the input) and check
-watertightness (with the exact self-intersection test). The input is also scored against itself
+every grid: fit a VoroMesh and take its mesh as ``reconstruct`` returns it (cleaned, fitted to the
+input: ``to_open3d(surface=input)``); build MC and DC from the same normalised SDF grid; score all
+three against the input (CD x1e5, F1 at 0.003, NC, in the NDC frame of the input; faces, triangles
+more than 30 degrees off the input's normal and slivers under 5 degrees,
+:func:`voro3d.metrics.triangle_quality`) and check watertightness (with the exact self-intersection
+test). The input is also scored against itself
 (two independent 100k-point samplings): the CD that a perfect reconstruction would get, the floor
 of this metric. An open input (boundary edges, no inside) is fitted with ``allow_open=True``
 (inside by generalized winding number) and marked. Each shape runs in its own process so
@@ -30,10 +33,11 @@ METHODS = ("voromesh", "mc", "dc")
 
 
 def _score(mesh, source, check_intersections=True):
-    from voro3d.metrics import evaluate
+    from voro3d.metrics import evaluate, triangle_quality
     from voro3d.watertight import check_watertight
 
     row = evaluate(mesh, source)
+    row.update(triangle_quality(mesh, source))
     report = check_watertight(mesh, self_intersection=check_intersections)
     row.update(watertight=report.watertight, self_intersecting_pairs=report.self_intersecting_pairs)
     return row
@@ -55,7 +59,7 @@ def _one(path, grid, steps, picture_dir, queue):
         open_input = open_edge_count(*mesh_arrays(source)) > 0
         start = time.perf_counter()
         shape, info = fit(source, grid, steps=steps, allow_open=open_input)
-        voromesh = shape.to_open3d()
+        voromesh = shape.to_open3d(surface=source)
         seconds = {"voromesh": time.perf_counter() - start}
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         frame = fit_frame(source)
@@ -107,7 +111,7 @@ def _summary(rows, grid):
     out = {"grid": grid, "shapes": len(ok), "fitted": len(fitted),
            "failed": len([r for r in rows if r["grid"] == grid]) - len(fitted)}
     for method in METHODS:
-        for key in ("chamfer_x1e5", "f1", "nc", "seconds"):
+        for key in ("chamfer_x1e5", "f1", "nc", "seconds", "n_triangles", "off_normal_share", "sliver_share"):
             out[f"{method}_{key}"] = float(np.mean([r[method][key] for r in ok])) if ok else float("nan")
         out[f"{method}_watertight_pct"] = (100.0 * np.mean([r[method]["watertight"] for r in fitted])
                                           if fitted else float("nan"))
@@ -129,35 +133,42 @@ def write_tables(rows, grids, out: Path):
     lines = [f"# Direct fit vs MC / DC ({meta['date']}, {meta['machine']}, load average after {' '.join(load)})", "",
              "Means over shapes; CD x1e5, F1 at 0.003 and NC in the NDC frame of the input (100k samples each); "
              "watertight = closed, manifold, oriented, positive volume, no exactly-confirmed crossing triangles. "
-             "VoroMesh seconds: whole fit (sampling, optimisation, occupancy, extraction); MC/DC seconds: SDF grid "
+             "Faces, off-normal (triangles more than 30 degrees off the input's normal) and slivers (smallest "
+             "angle under 5 degrees): `voro3d.metrics.triangle_quality`. "
+             "VoroMesh: the mesh `reconstruct` returns (cleaned, fitted to the input); its seconds: whole fit "
+             "(sampling, optimisation, occupancy, extraction, clean, fit to the input); MC/DC seconds: SDF grid "
              "+ meshing. *floor*: the input scored against itself (another 100k-point sampling), what a "
              "perfect reconstruction would score; *floor / MC* is the lowest CD ratio any method could reach.", "",
-             "| grid | shapes | method | CD x1e5 | F1 | NC | watertight % | mean s | max s |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| grid | shapes | method | CD x1e5 | F1 | NC | faces | off-normal % | slivers % | watertight % | "
+             "mean s | max s |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in summaries:
         for method in METHODS:
             top = f"{s[method + '_seconds']:.2f}" if method != "voromesh" else f"{s['voromesh_seconds']:.2f}"
             worst = f"{s['voromesh_seconds_max']:.1f}" if method == "voromesh" else ""
             lines.append(f"| {s['grid']} | {s['shapes']} | {method} | {s[method + '_chamfer_x1e5']:.3f} | "
-                         f"{s[method + '_f1']:.3f} | {s[method + '_nc']:.3f} | {s[method + '_watertight_pct']:.0f} | "
+                         f"{s[method + '_f1']:.3f} | {s[method + '_nc']:.3f} | {s[method + '_n_triangles']:.0f} | "
+                         f"{s[method + '_off_normal_share']:.1%} | {s[method + '_sliver_share']:.1%} | "
+                         f"{s[method + '_watertight_pct']:.0f} | "
                          f"{top} | {worst} |")
-        lines.append(f"| {s['grid']} | {s['shapes']} | floor (input vs itself) | {s['floor_chamfer_x1e5']:.3f} | | | | | |")
-        lines.append(f"| {s['grid']} | | VoroMesh CD / MC CD | {s['cd_ratio_vs_mc']:.3f} | | | | peak RSS "
+        lines.append(f"| {s['grid']} | {s['shapes']} | floor (input vs itself) | {s['floor_chamfer_x1e5']:.3f} |"
+                     + " |" * 8)
+        lines.append(f"| {s['grid']} | | VoroMesh CD / MC CD | {s['cd_ratio_vs_mc']:.3f} | | | | | | | peak RSS "
                      f"{s['voromesh_peak_rss_mib']:.0f} MiB | |")
-        lines.append(f"| {s['grid']} | | floor / MC CD | {s['floor_ratio_vs_mc']:.3f} | | | | | |")
+        lines.append(f"| {s['grid']} | | floor / MC CD | {s['floor_ratio_vs_mc']:.3f} |" + " |" * 8)
     lines += ["", "## Per shape", "", "Shapes marked * are open inputs, fitted with `allow_open=True`.", "",
               "| shape | grid | floor | VoroMesh CD | MC CD | DC CD | VoroMesh F1 | VoroMesh NC | "
-              "VoroMesh s | watertight V/MC/DC |", "|---|---|---|---|---|---|---|---|---|---|"]
+              "off-normal % V/MC | VoroMesh s | watertight V/MC/DC |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['shape']} | {r['grid']} | | failed: {r['error']} | | | | | | |")
+            lines.append(f"| {r['shape']} | {r['grid']} | | failed: {r['error']} | | | | | | | |")
             continue
         v, m, d = r["voromesh"], r["mc"], r["dc"]
         cd = {k: f"{x['chamfer_x1e5']:.3f}" if "chamfer_x1e5" in x else "no mesh" for k, x in (("m", m), ("d", d))}
         name = r["shape"] + (" *" if r.get("open_input") else "")
+        mc_off = f"{m['off_normal_share']:.1%}" if "off_normal_share" in m else "-"
         lines.append(f"| {name} | {r['grid']} | {r['floor']:.3f} | {v['chamfer_x1e5']:.3f} | {cd['m']} | "
-                     f"{cd['d']} | {v['f1']:.3f} | {v['nc']:.3f} | {v['seconds']:.1f} | "
-                     f"{v['watertight']}/{m['watertight']}/{d['watertight']} |")
+                     f"{cd['d']} | {v['f1']:.3f} | {v['nc']:.3f} | {v['off_normal_share']:.1%}/{mc_off} | "
+                     f"{v['seconds']:.1f} | {v['watertight']}/{m['watertight']}/{d['watertight']} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
 
