@@ -269,10 +269,10 @@ def _summary(rows, grid):
     out["off_normal_above_mc"] = int(sum(r["cleaned"]["off_normal_share"] > r["mc"]["off_normal_share"] for r in ok))
     out["output_off_normal_above_mc"] = int(sum(r["output"]["off_normal_share"] > r["mc"]["off_normal_share"]
                                                 for r in ok))
-    for key, against in (("cleaned", "cleaned"), ("uncleaned", "uncleaned")):
+    for against in ("cleaned", "uncleaned"):
         change = [r["output"]["chamfer_x1e5"] / r[against]["chamfer_x1e5"] - 1 for r in ok]
-        out[f"output_cd_change_{key}_mean"], out[f"output_cd_change_{key}_worst"] = float(np.mean(change)), float(
-            max(change))
+        out[f"output_cd_change_{against}_mean"], out[f"output_cd_change_{against}_worst"] = float(
+            np.mean(change)), float(max(change))
     out["output_nc_change_worst"] = float(min(r["output"]["nc"] - r["cleaned"]["nc"] for r in ok))
     out["output_slivers_max"] = float(max(r["output"]["sliver_share"] for r in ok))
     out["snap_seconds_mean"] = float(np.mean([r["snap_seconds"] for r in ok]))

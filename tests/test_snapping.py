@@ -97,13 +97,21 @@ def test_shared_positions_stay_and_bad_parameters_are_named():
         snap_to_surface(vertices, triangles, sphere(), voxel=1.0, max_turn=91)
 
 
-def test_snap_takes_open3d_meshes_and_fits_a_voromesh_to_its_input():
+@pytest.fixture(scope="module")
+def torus_fit():
+    """The torus example and its VoroMesh at 20^3 (150 steps, seed 0): two tests fit it."""
     import voro3d
-    from voro3d.metrics import evaluate, triangle_quality
     from voro3d.shapes import example_mesh
 
     source = example_mesh("torus")
-    shape, _ = voro3d.fit(source, grid=20, steps=150, seed=0)
+    return source, voro3d.fit(source, grid=20, steps=150, seed=0)[0]
+
+
+def test_snap_takes_open3d_meshes_and_fits_a_voromesh_to_its_input(torus_fit):
+    import voro3d
+    from voro3d.metrics import evaluate, triangle_quality
+
+    source, shape = torus_fit
     cleaned = shape.to_open3d()
     fitted = voro3d.snap(cleaned, source)
     assert isinstance(fitted, o3d.geometry.TriangleMesh) and fitted.has_vertex_normals()
@@ -129,13 +137,11 @@ def test_smoothing_pulls_a_bumpy_fit_flat():
     assert spread[1.0] < 0.7 * spread[0.0]  # measured 0.0054 against 0.0110
 
 
-def test_mesh_paths_return_the_surface_fitted_to_their_input():
+def test_mesh_paths_return_the_surface_fitted_to_their_input(torus_fit):
     import voro3d
     from voro3d.metrics import triangle_quality
-    from voro3d.shapes import example_mesh
 
-    source = example_mesh("torus")
-    shape, _ = voro3d.fit(source, grid=20, steps=150, seed=0)
+    source, shape = torus_fit
     cleaned, fitted = shape.to_open3d(), shape.to_open3d(surface=source)
     assert np.array_equal(np.asarray(fitted.triangles), np.asarray(cleaned.triangles))
     assert not np.array_equal(np.asarray(fitted.vertices), np.asarray(cleaned.vertices))

@@ -110,7 +110,7 @@ def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE,
         cloud's target surface. With ``clean``, the cleaned vertices are then fitted to it
         (:func:`voro3d.snapping.snap_to_surface`: at most a quarter voxel each, where no guarantee
         breaks), which straightens the facets the VoroLoss fit left tilted (dev meshes at 32^3:
-        triangles over 30 degrees off the input's normal 9.1% -> 6.3%, CD -2.6%;
+        triangles over 30 degrees off the input's normal 9.1% -> 6.4%, CD -2.6%;
         ``benchmarks/results/clean_32_64.md``). Ignored without ``clean``.
     smoothing : float
         The fit's pull of each vertex towards its neighbours (``snap_to_surface``), for a noisy

@@ -215,7 +215,8 @@ def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: flo
     surface : open3d.geometry.TriangleMesh or (vertices, triangles)
         The target surface, same units; need not be closed.
     voxel : float
-        The unit of ``max_move``, in mesh units (the fit grid's voxel).
+        The unit of ``max_move``, in mesh units: the fit grid's voxel, or the clean's estimate of it
+        (:func:`voro3d.cleaning.voxel_size`, as ``extract_mesh`` passes it).
     max_move : float
         Largest move of a vertex, in voxels: every point of the result is within it of the input
         and every point of the input within it of the result.

@@ -1,8 +1,9 @@
 """Point clouds in: outlier removal, normals, a smooth target surface, the VoroLoss fit to it.
 
 io -> pointcloud.preprocess (outliers, spacing, noise) -> pointcloud.normals -> pointcloud.poisson
-(closed clouds; pointcloud.denoise filters it where the noise is heavy) or pointcloud.surface (IMLS + winding-number field for one-sided scans) ->
-pointcloud.reconstruct (samples, fit, the mesh fitted to the target, colours).
+(closed clouds; pointcloud.denoise filters it where the noise is heavy) or pointcloud.surface
+(IMLS + winding-number field for one-sided scans) -> pointcloud.reconstruct (samples, fit, the mesh
+fitted to the target, colours).
 """
 from .normals import estimate_normals, repair_normals
 from .preprocess import cloud_stats, fill_ratio, local_dimension, outlier_mask
