@@ -156,6 +156,18 @@ def test_load_points_open3d_formats(tmp_path, suffix):
     assert loaded.has_normals() == (suffix != ".xyz")
 
 
+@pytest.mark.parametrize("header", ["", "40\n"])
+def test_load_points_text_with_normals(tmp_path, header):
+    """CGAL's .pwn and six-column .xyz: x y z nx ny nz a line (a count line first in some)."""
+    rng = np.random.default_rng(2)
+    array = rng.normal(size=(40, 6))
+    for suffix in (".pwn", ".xyz"):
+        write(tmp_path / f"c{suffix}", header + "\n".join(" ".join(f"{v:.17g}" for v in row) for row in array))
+        loaded = load_points(tmp_path / f"c{suffix}")
+        np.testing.assert_array_equal(np.asarray(loaded.points), array[:, :3])
+        np.testing.assert_array_equal(np.asarray(loaded.normals), array[:, 3:])
+
+
 def test_load_points_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="missing.npy"):
         load_points(tmp_path / "missing.npy")
@@ -173,6 +185,8 @@ def test_load_points_errors(tmp_path):
         load_points(write(tmp_path / "junk.pcd", "not a pcd"))
     with pytest.raises(ValueError, match="could not be read"):
         load_points(write(tmp_path / "empty.xyz", ""))
+    with pytest.raises(ValueError, match=r"readable formats are .*\.pwn"):
+        load_points(write(tmp_path / "cloud.las", "binary"))
 
 
 # -- frames ---------------------------------------------------------------------------------------

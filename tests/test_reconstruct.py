@@ -122,7 +122,7 @@ def test_winding_number_inside_outside(torus_cloud):
     (np.full((200, 3), np.nan), "NaN"),
     (np.c_[np.random.default_rng(0).random((500, 2)), np.zeros(500)], "coplanar"),
     (np.zeros((200, 2)), "shape"),
-    (np.repeat(np.eye(4, 3), 50, axis=0), "duplicated"),  # 4 positions, 50 copies each
+    (np.repeat(np.eye(4, 3), 50, axis=0), r"4 distinct points \(196 duplicated points merged\)"),
 ])
 def test_bad_clouds(geometry, match):
     with pytest.raises(ValueError, match=match):
@@ -167,3 +167,68 @@ def test_thin_walls_survive(dev_meshes):
     result = reconstruct(points, grid=32)
     assert check_watertight(result, self_intersection=False).watertight
     assert evaluate(result, mesh)["chamfer_x1e5"] < 1.0  # measured 0.635
+
+
+def _torus_cd(cloud, mesh):
+    out = reconstruct(cloud, **FAST)
+    assert check_watertight(out).watertight
+    return evaluate(out, mesh, n_samples=20000)["chamfer_x1e5"]
+
+
+def test_normals_with_random_signs_are_reoriented(torus_cloud):
+    """pcd.estimate_normals() alone, as a user runs it: axes without consistent signs."""
+    mesh, points, _ = torus_cloud
+    cloud = _cloud(points)
+    cloud.estimate_normals()
+    from voro3d.pointcloud import sign_disagreement
+
+    assert sign_disagreement(points, np.asarray(cloud.normals)) > 0.1
+    assert _torus_cd(cloud, mesh) < 1.2 * _torus_cd(points, mesh)
+
+
+def test_inward_normals_are_flipped(torus_cloud):
+    mesh, points, normals = torus_cloud
+    assert _torus_cd(_cloud(points, -normals), mesh) < 1.2 * _torus_cd(points, mesh)
+
+
+def test_sign_disagreement_tells_consistent_from_random_signs(torus_cloud):
+    from voro3d.pointcloud import sign_disagreement
+
+    _, points, normals = torus_cloud
+    signs = np.random.default_rng(0).choice([-1.0, 1.0], (len(points), 1))
+    assert sign_disagreement(points, normals) < 0.01 and sign_disagreement(points, -normals) < 0.01
+    assert 0.4 < sign_disagreement(points, signs * normals) < 0.6
+
+
+def test_repeated_points_are_merged(torus_cloud):
+    """Merged scans repeat points: each point ten times gives the mesh of the points once."""
+    mesh, points, normals = torus_cloud
+    once = reconstruct(points[:2000], **FAST)
+    repeated = reconstruct(np.repeat(points[:2000], 10, axis=0), **FAST)
+    assert np.array_equal(np.asarray(once.triangles), np.asarray(repeated.triangles))
+    assert np.allclose(np.asarray(once.vertices), np.asarray(repeated.vertices))
+
+
+def test_a_few_nan_normals_are_repaired_and_many_refused(torus_cloud):
+    mesh, points, normals = torus_cloud
+    broken = normals.copy()
+    broken[::200] = np.nan  # 0.5%
+    assert _torus_cd(np.hstack([points, broken]), mesh) < 1.2 * _torus_cd(np.hstack([points, normals]), mesh)
+    broken[::20] = 0.0  # 5%
+    with pytest.raises(ValueError, match="normals are zero, NaN or inf"):
+        reconstruct(np.hstack([points, broken]), **FAST)
+
+
+def test_objects_far_apart_each_get_their_own_grid():
+    """Two unit spheres 50 apart: one grid over both gave 216 faces in all."""
+    from voro3d.pointcloud import separate_objects
+
+    points, _ = sample_surface(example_mesh("sphere"), 3000, seed=3)
+    cloud = np.vstack([points, points + [50.0, 0.0, 0.0]])
+    assert [len(group) for group in separate_objects(cloud, min_points=100)] == [3000, 3000]
+    assert len(separate_objects(cloud[:3050], min_points=100)) == 1  # 50 points cannot stand alone
+    out = reconstruct(cloud, grid=16, steps=60)
+    alone = reconstruct(points, grid=16, steps=60)
+    assert check_watertight(out).watertight
+    assert abs(len(out.triangles) - 2 * len(alone.triangles)) < 0.05 * len(out.triangles)
+    assert abs(out.get_volume() - 2 * alone.get_volume()) < 0.01 * out.get_volume()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +30,9 @@ __all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POLYGON_SUFFIXES", "Normalization
 MERGE_TOLERANCE = 1e-9
 
 MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
-POINT_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
+POINT_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pwn", ".pts", ".npy")
+# Plain text, one point a line: x y z, or x y z nx ny nz (CGAL's and Poisson's .pwn; .xyz either way).
+TEXT_POINT_SUFFIXES = (".xyz", ".pwn")
 POLYGON_SUFFIXES = (".ply", ".obj", ".off")
 
 
@@ -216,14 +219,27 @@ def load_mesh(path, *, weld: bool = True):
     return mesh
 
 
+def _text_points(path) -> np.ndarray:
+    """(n, c) float64 from whitespace-separated text; a first line of one number (a count) is skipped."""
+    with open(path) as stream:
+        first = stream.readline().split()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
+        array = np.loadtxt(path, dtype=np.float64, ndmin=2, skiprows=1 if len(first) == 1 else 0, comments="#")
+    if array.size == 0:
+        raise ValueError("it holds no points")
+    return array
+
+
 def load_points(path):
     """Read a point cloud, with normals when the file has them.
 
     Parameters
     ----------
     path : str or os.PathLike
-        ``.ply .pcd .xyz .xyzn .pts`` (via Open3D) or ``.npy`` holding an ``(n, 3)`` array of
-        positions or an ``(n, 6)`` array of positions then normals.
+        ``.ply .pcd .xyzn .xyzrgb .pts`` (via Open3D); ``.xyz`` or ``.pwn`` text, one point a line,
+        ``x y z`` or ``x y z nx ny nz`` (the first line may hold the point count); or ``.npy``
+        holding an ``(n, 3)`` array of positions or an ``(n, 6)`` array of positions then normals.
 
     Returns
     -------
@@ -240,11 +256,15 @@ def load_points(path):
     import open3d as o3d
 
     path = _existing_file(path)
-    if path.suffix.lower() == ".npy":
+    suffix = path.suffix.lower()
+    if suffix not in POINT_SUFFIXES:
+        raise ValueError(f"{path} is not a point cloud file: readable formats are {', '.join(POINT_SUFFIXES)}")
+    if suffix == ".npy" or suffix in TEXT_POINT_SUFFIXES:
         try:
-            array = np.load(path, allow_pickle=False)
+            array = np.load(path, allow_pickle=False) if suffix == ".npy" else _text_points(path)
         except (ValueError, OSError, EOFError) as error:
-            raise ValueError(f"{path} could not be read as a .npy array: {error}") from None
+            raise ValueError(f"{path} could not be read as {'a .npy array' if suffix == '.npy' else 'x y z [nx ny nz] lines'}"
+                             f": {error}") from None
         if array.ndim != 2 or array.shape[1] not in (3, 6):
             raise ValueError(f"{path} must hold an array of shape (n, 3) or (n, 6), got {array.shape}")
         array = as_points(array.reshape(-1, 3), str(path)).reshape(-1, array.shape[1])
@@ -255,7 +275,8 @@ def load_points(path):
     with _quiet():
         cloud = o3d.io.read_point_cloud(str(path))
     if len(cloud.points) == 0:
-        raise ValueError(f"{path} could not be read as a point cloud (unsupported or corrupt file, or empty)")
+        raise ValueError(f"{path} could not be read as a point cloud (corrupt or empty; readable formats are "
+                         f"{', '.join(POINT_SUFFIXES)})")
     as_points(np.asarray(cloud.points), str(path))
     if cloud.has_normals() and not np.isfinite(np.asarray(cloud.normals)).all():
         raise ValueError(f"{path} holds NaN or inf normals")

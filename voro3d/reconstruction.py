@@ -29,8 +29,11 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     geometry : open3d.geometry.PointCloud, open3d.geometry.TriangleMesh, their ``open3d.t``
         versions, (n, 3) or (n, 6) float array (points, or points then normals), or a path
         to a mesh or point-cloud file.
-        Point clouds use their normals when they have them (a few zero or NaN ones are
-        repaired from their neighbours); otherwise normals are estimated and oriented.
+        Point clouds use their normals when they have them, checked (a few zero or NaN ones are
+        repaired from their neighbours, signs that disagree between neighbours re-oriented,
+        normals that all point inward flipped); otherwise normals are estimated and oriented.
+        Repeated points are merged; objects far apart are reconstructed one by one
+        (:func:`voro3d.pointcloud.separate_objects`).
     grid : int or "auto"
         Grid resolution ``g`` (``g^3`` nodes over the shape's bounding box), at least 4, no
         upper limit. ``"auto"``: for a mesh, 32 (:data:`MESH_AUTO_GRID`: a mesh has no point
@@ -55,7 +58,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         smooth target surface (:func:`voro3d.snapping.snap_to_surface`), every guarantee kept;
         ``False`` keeps the Voronoi faces as they are.
     progress : bool
-        Show a progress bar over the fit's steps (the learned method has no loop to show).
+        Show a progress bar over the fit's steps (the learned method has no loop to show) and,
+        for a point cloud, one line on stderr per phase with what it chose and its time.
 
     Returns
     -------
@@ -91,16 +95,26 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         from .infer import predict_from_mesh
 
         return predict_from_mesh(data, grid).to_open3d(clean=clean, surface=data)
-    from .pointcloud import cloud_mesh, reconstruct_points, transfer_colors
+    import open3d as o3d
+
+    from .pointcloud import cloud_mesh, reconstruct_points, separate_objects, transfer_colors
+    from .pointcloud.reconstruct import report_phase
 
     points, normals, colors = data
-    shape, info = reconstruct_points(points, normals, grid=grid, method=method, denoise=denoise, progress=progress,
-                                     **fit_options)
-    mesh = cloud_mesh(shape, info, clean=clean)
-    if colors is not None:
-        import open3d as o3d
-
-        mesh.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(mesh.vertices), points, colors))
+    mesh = o3d.geometry.TriangleMesh()
+    # Objects far apart are reconstructed one by one, each at its own grid; their meshes lie in
+    # disjoint boxes, so together they are still closed and free of crossings.
+    groups = separate_objects(points, min_points=MIN_POINTS)
+    for number, group in enumerate(groups):
+        if len(groups) > 1:
+            report_phase(progress, "object", f"{number + 1} of {len(groups)} far apart: {len(group):,} points")
+        shape, info = reconstruct_points(points[group], None if normals is None else normals[group], grid=grid,
+                                         method=method, denoise=denoise, progress=progress, **fit_options)
+        piece = cloud_mesh(shape, info, clean=clean, progress=progress)
+        if colors is not None:
+            piece.vertex_colors = o3d.utility.Vector3dVector(
+                transfer_colors(np.asarray(piece.vertices), points[group], colors[group]))
+        mesh += piece
     return mesh
 
 
@@ -168,18 +182,27 @@ def _read(geometry):
             points, normals = array[:, :3], array[:, 3:]
         else:
             points, normals = array, None
-    points, normals = _oriented(points, normals)
+    points = as_points(points, "points", min_count=0)
     if colors is not None:
         colors = np.asarray(colors, np.float64)
         if colors.shape != points.shape or not np.isfinite(colors).all():
             raise ValueError(f"colors must be finite with shape {points.shape}, got {colors.shape}")
-    return "points", (points, normals, colors)
+    if normals is not None:
+        normals = np.asarray(normals)
+        if normals.shape != points.shape or not np.issubdtype(normals.dtype, np.number):
+            raise ValueError(f"normals must be a numeric array of shape {points.shape}, got {normals.dtype} "
+                             f"{normals.shape}")
+    from .pointcloud import merge_duplicates
+
+    given = points.shape[0]
+    points, normals, colors = merge_duplicates(points, None if normals is None else normals.astype(np.float64), colors)
+    if points.shape[0] < MIN_POINTS:
+        repeats = f" ({given - points.shape[0]} duplicated points merged)" if given > points.shape[0] else ""
+        raise ValueError(f"point cloud has {points.shape[0]} distinct points{repeats}; at least {MIN_POINTS} are needed")
+    return "points", (*_oriented(points, normals), colors)
 
 
 def _oriented(points, normals):
-    points = as_points(points, "points", min_count=0)
-    if points.shape[0] < MIN_POINTS:
-        raise ValueError(f"point cloud has {points.shape[0]} points; at least {MIN_POINTS} are needed")
     centred = points - points.mean(axis=0)
     singular = np.linalg.svd(centred[:: max(1, points.shape[0] // 20000)], compute_uv=False)
     if singular[2] <= 1e-9 * singular[0]:
@@ -188,7 +211,4 @@ def _oriented(points, normals):
         return points, None
     from .pointcloud import repair_normals
 
-    normals = np.asarray(normals)
-    if normals.shape != points.shape or not np.issubdtype(normals.dtype, np.number):
-        raise ValueError(f"normals must be a numeric array of shape {points.shape}, got {normals.dtype} {normals.shape}")
     return points, repair_normals(points, normals)

@@ -5,12 +5,13 @@ io -> pointcloud.preprocess (outliers, spacing, noise) -> pointcloud.normals -> 
 (IMLS + winding-number field for one-sided scans) -> pointcloud.reconstruct (samples, fit, the mesh
 fitted to the target, colours).
 """
-from .normals import estimate_normals, repair_normals
-from .preprocess import cloud_stats, fill_ratio, local_dimension, outlier_mask
+from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement
+from .preprocess import cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, separate_objects
 from .reconstruct import PointCloudInfo, auto_grid, cloud_mesh, max_supported_grid, reconstruct_points, transfer_colors
 from .poisson import PoissonSurface, poisson_surface
 from .surface import TargetSurface, imls, target_surface
 
-__all__ = ["estimate_normals", "repair_normals", "cloud_stats", "fill_ratio", "local_dimension", "outlier_mask", "PointCloudInfo",
+__all__ = ["estimate_normals", "orient_normals", "repair_normals", "sign_disagreement", "cloud_stats", "fill_ratio",
+           "local_dimension", "merge_duplicates", "outlier_mask", "separate_objects", "PointCloudInfo",
            "auto_grid", "cloud_mesh", "max_supported_grid", "reconstruct_points", "transfer_colors", "TargetSurface", "imls",
            "target_surface", "PoissonSurface", "poisson_surface"]

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["estimate_normals", "repair_normals"]
+__all__ = ["estimate_normals", "orient_normals", "sign_disagreement", "repair_normals"]
 
 # Neighbours for normal estimation and orientation.
 NEIGHBOURS = 16
@@ -55,21 +55,8 @@ def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
 
 def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | None = None) -> np.ndarray:
-    """Unit normals from local PCA, oriented consistently and outward.
-
-    Open3D fits a plane to each point's ``k`` nearest neighbours. The signs are then made
-    consistent as in Hoppe et al. (1992): over the k-nearest-neighbour graph weighted by
-    ``1 - |n_i . n_j| + |d . n_i| + |d . n_j|`` (``d`` the unit edge direction), a minimum
-    spanning tree (scipy) carries each point's sign to its neighbours along the flattest
-    paths that stay on one side of thin walls. That is Open3D's
-    ``orient_normals_consistent_tangent_plane`` in spirit, but vectorised: about 2 s instead of
-    10 s to 9 minutes for 10^5 points here. Each connected piece of the graph is then flipped if
-    its normals point inward on balance, ``sum n . (p - c) < 0`` about the centroid ``c`` of
-    the cloud: for a closed surface that sum is three times the enclosed volume whatever ``c``.
-    Finally the tree is cut into smooth patches (where normals turn or an edge leaves the
-    tangent plane) and a patch flips when its points clearly see open space behind them and
-    enclosed space in front (:func:`_outside_votes`): a flat face that the tree reached
-    across a sharp edge with the wrong sign (the base of a bust) is caught there.
+    """Unit normals from local PCA (Open3D's plane fits over ``k`` neighbours), oriented
+    consistently and outward by :func:`orient_normals`.
 
     Parameters
     ----------
@@ -90,13 +77,10 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
         When the plane fits give no usable normals (degenerate neighbourhoods).
     """
     import open3d as o3d
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
     from scipy.spatial import cKDTree
 
     n = points.shape[0]
     k = min(k, n - 1)
-    graph_k = k if graph_k is None else min(graph_k, k)
     distances, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
     extent = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
     stacked = int((distances[:, -1] <= 1e-9 * extent).sum())
@@ -108,9 +92,85 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     normals = np.asarray(cloud.normals).copy()
     if not np.isfinite(normals).all() or (np.linalg.norm(normals, axis=1) < 0.5).mean() > 0.01:
         raise ValueError("normals could not be estimated (degenerate neighbourhoods)")
+    graph_k = k if graph_k is None else min(graph_k, k)
+    return orient_normals(points, normals, neighbours=(distances[:, :graph_k + 1], neighbours[:, :graph_k + 1]))
 
+
+def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: int = NEIGHBOURS) -> float:
+    """Share of neighbouring points on one sheet whose normals point opposite ways.
+
+    Pairs among the ``k`` nearest neighbours count when their normals are nearly parallel
+    (``|n_i . n_j| > 0.9``) and the step between them lies in both tangent planes (under 0.3 of
+    its length along either normal), so a neighbour across a sharp edge or a thin wall does not.
+    Consistent normals read about 0, signs drawn at random 0.5 (see :data:`MAX_SIGN_DISAGREEMENT`).
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64
+        ``normals`` unit length.
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 when no pair counts.
+    """
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(points) if tree is None else tree
+    _, neighbours = tree.query(points, k=min(k, points.shape[0] - 1) + 1, workers=-1)
+    rows = np.repeat(np.arange(points.shape[0]), neighbours.shape[1] - 1)
+    cols = neighbours[:, 1:].reshape(-1)
+    keep = cols < points.shape[0]
+    rows, cols = rows[keep], cols[keep]
+    step = points[cols] - points[rows]
+    step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
+    dot = np.einsum("ij,ij->i", normals[rows], normals[cols])
+    sheet = ((np.abs(dot) > 0.9) & (np.abs(np.einsum("ij,ij->i", step, normals[rows])) < 0.3)
+             & (np.abs(np.einsum("ij,ij->i", step, normals[cols])) < 0.3))
+    return float(np.mean(dot[sheet] < 0)) if sheet.any() else 0.0
+
+
+def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, k: int = NEIGHBOURS) -> np.ndarray:
+    """Signs of unit normal axes made consistent between neighbours and outward.
+
+    As in Hoppe et al. (1992): over the k-nearest-neighbour graph weighted by
+    ``1 - |n_i . n_j| + |d . n_i| + |d . n_j|`` (``d`` the unit edge direction), a minimum
+    spanning tree (scipy) carries each point's sign to its neighbours along the flattest
+    paths that stay on one side of thin walls. That is Open3D's
+    ``orient_normals_consistent_tangent_plane`` in spirit, but vectorised: about 2 s instead of
+    10 s to 9 minutes for 10^5 points here. Each connected piece of the graph is then flipped if
+    its normals point inward on balance, ``sum n . (p - c) < 0`` about the centroid ``c`` of
+    the cloud: for a closed surface that sum is three times the enclosed volume whatever ``c``.
+    Finally the tree is cut into smooth patches (where normals turn or an edge leaves the
+    tangent plane) and a patch flips when its points clearly see open space behind them and
+    enclosed space in front (:func:`_outside_votes`): a flat face that the tree reached
+    across a sharp edge with the wrong sign (the base of a bust) is caught there.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    normals : (n, 3) float64
+        Unit axes; their signs are ignored.
+    neighbours : tuple of ((n, j) float64, (n, j) int64), optional
+        The graph: distances to and indices of each point's ``j - 1`` nearest neighbours, itself
+        first (a cKDTree query); default the ``k`` nearest.
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.spatial import cKDTree
+
+    n = points.shape[0]
+    if neighbours is None:
+        neighbours = cKDTree(points).query(points, k=min(k, n - 1) + 1, workers=-1)
+    distances, neighbours = neighbours
+    graph_k = neighbours.shape[1] - 1
+    normals = np.array(normals, np.float64)
     rows = np.repeat(np.arange(n), graph_k)
-    cols = neighbours[:, 1:graph_k + 1].reshape(-1)
+    cols = neighbours[:, 1:].reshape(-1)
     keep = cols < n  # duplicate points can leave a row short
     rows, cols = rows[keep], cols[keep]
     # Edges along the surface are cheap, so the tree never steps across a thin wall (whose two

@@ -5,12 +5,95 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CloudStats", "cloud_stats", "outlier_mask", "local_dimension", "fill_ratio"]
+__all__ = ["CloudStats", "cloud_stats", "outlier_mask", "local_dimension", "fill_ratio", "merge_duplicates",
+           "separate_objects"]
 
 # Neighbours of the spacing and noise estimates.
 SPACING_NEIGHBOURS = 8
 NOISE_NEIGHBOURS = 24
 STRAY_NEIGHBOURS = 20
+
+
+def merge_duplicates(points: np.ndarray, *attributes):
+    """Points at the same position merged into one, their attributes averaged.
+
+    Merged scans and resampled clouds repeat points exactly; a repeated point looks like a
+    point with no neighbours around it (its nearest ones are itself), which the spacing, the
+    outlier tests and the plane fits cannot use.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    *attributes : (n, c) float64 or None
+        Normals, colours: averaged over each point's copies (normals then normalised where they
+        do not cancel; those that do come back zero, for :func:`~voro3d.pointcloud.normals.repair_normals`).
+
+    Returns
+    -------
+    points : (m, 3) float64
+        The distinct positions, in the order they first appear.
+    *attributes : (m, c) float64 or None
+    """
+    unique, first, index = np.unique(points, axis=0, return_index=True, return_inverse=True)
+    if len(unique) == len(points):
+        return (points, *attributes)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    index = rank[index.reshape(-1)]
+    count = np.bincount(index)
+    merged = []
+    for values in attributes:
+        if values is None:
+            merged.append(None)
+            continue
+        mean = np.stack([np.bincount(index, weights=column) for column in values.T], axis=1) / count[:, None]
+        merged.append(mean)
+    return (unique[order], *merged)
+
+
+def separate_objects(points: np.ndarray, *, min_points: int, margin: float = 0.5) -> list[np.ndarray]:
+    """Groups of points far enough apart to be reconstructed one by one.
+
+    The points' neighbour graph (:func:`_pieces`) splits into connected pieces; pieces whose
+    bounding boxes, each grown by ``margin`` of its own diagonal, overlap are joined. One grid
+    over objects far apart spends most of its voxels on the empty space between them (two unit
+    spheres 50 apart: 216 faces in all); apart, each gets the grid its own spacing asks for,
+    and their meshes, inside disjoint boxes, can neither touch nor cross.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        Distinct points, outliers included.
+    min_points : int
+        Fewest points a group can be reconstructed from: with a smaller group, nothing is split.
+
+    Returns
+    -------
+    list of (k,) int64
+        Indices of each group, the largest first; one group holding every point when nothing is
+        far apart.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = points.shape[0]
+    distance, neighbour = cKDTree(points).query(points, k=min(SPACING_NEIGHBOURS + 1, n), workers=-1)
+    piece = _pieces(distance, neighbour, np.ones(n, bool))
+    low = np.full((piece.max() + 1, 3), np.inf)
+    high = np.full((piece.max() + 1, 3), -np.inf)
+    np.minimum.at(low, piece, points)
+    np.maximum.at(high, piece, points)
+    grow = margin * np.linalg.norm(high - low, axis=1)[:, None]
+    low, high = low - grow, high + grow
+    overlap = np.all((low[:, None] <= high[None]) & (low[None] <= high[:, None]), axis=2)
+    _, group = connected_components(coo_matrix(overlap), directed=False)
+    group = group[piece]
+    members = sorted((np.flatnonzero(group == g) for g in np.unique(group)), key=len, reverse=True)
+    if len(members[-1]) < min_points:
+        return [np.arange(n)]
+    return members
 
 
 @dataclass(frozen=True)
@@ -96,6 +179,14 @@ def _small_clusters(distance, neighbour, candidate, *, reach: float = 4.0, share
     """Points in groups, apart from the rest, of fewer than ``share`` of the points: the
     neighbour graph joins points within ``reach`` median 8th-neighbour distances; a far-off
     clump of strays is a small piece of it, a second object a large one."""
+    piece = _pieces(distance, neighbour, candidate, reach=reach)
+    size = np.bincount(piece[candidate], minlength=piece.max() + 1)
+    return candidate & (size[piece] < max(share * candidate.sum(), 10))
+
+
+def _pieces(distance, neighbour, candidate, *, reach: float = 4.0) -> np.ndarray:
+    """Connected piece of each point in the graph joining ``candidate`` points within ``reach``
+    median 8th-neighbour distances (``distance``, ``neighbour``: a kNN query, itself first)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -103,10 +194,8 @@ def _small_clusters(distance, neighbour, candidate, *, reach: float = 4.0, share
     rows = np.repeat(np.arange(n), distance.shape[1] - 1)
     cols = neighbour[:, 1:].reshape(-1)
     near = (distance[:, 1:].reshape(-1) <= reach * np.median(distance[:, -1])) & candidate[rows] & candidate[cols]
-    pieces, piece = connected_components(coo_matrix((np.ones(int(near.sum())), (rows[near], cols[near])),
-                                                    shape=(n, n)), directed=False)
-    size = np.bincount(piece[candidate], minlength=pieces)
-    return candidate & (size[piece] < max(share * candidate.sum(), 10))
+    return connected_components(coo_matrix((np.ones(int(near.sum())), (rows[near], cols[near])), shape=(n, n)),
+                                directed=False)[1]
 
 
 # A cloud is taken to fill a volume, rather than sample a surface, when both tests say so. The

@@ -13,6 +13,7 @@ spacing (where both make a lumpy solid), a shell at a small distance around the 
 """
 from __future__ import annotations
 
+import sys
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -20,8 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..queries import point_areas
-from .normals import estimate_normals
-from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, outlier_mask
+from .normals import estimate_normals, orient_normals, sign_disagreement
+from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
+                         outlier_mask)
 from .poisson import poisson_depth, poisson_surface
 from .surface import imls, sheet_surface, target_surface, winding_level
 
@@ -46,6 +48,13 @@ MAX_TRUSTED_OUTLIERS = 0.01
 # whose normals the second pass mixes (a cup lid at 1% noise: 0.46, CD 21 -> 64 with it; other dev
 # shapes at 0.25-1% noise read 0.64-0.98).
 MIN_NORMAL_AGREEMENT = 0.6
+# Given normals whose signs disagree between this share of neighbours on one sheet
+# (:func:`~voro3d.pointcloud.normals.sign_disagreement`) are re-oriented by our orienter. 30k points
+# of each of the 38 dev meshes: their true normals read 0-0.0045 (0-0.029 with 0.5% noise), but for
+# abc_00000001 (0.18: its triangles are not consistently oriented); random signs 0.50; Open3D's
+# estimate_normals() on the noisy clouds, as a user runs it, 0.156-0.364; our own orientation of those
+# clouds 0-0.076.
+MAX_SIGN_DISAGREEMENT = 0.1
 # Fine-scale noise above this share of the spacing turns on the smoothing pass (denoise=None):
 # clean dev clouds read under 0.075, 0.25% noise and more at least 0.19.
 NOISY = 0.13
@@ -110,6 +119,10 @@ class PointCloudInfo:
         Median point spacing and estimated noise (standard deviation), in the input's units.
     noisy : bool
         Whether the fine-scale noise is over ``NOISY`` spacings.
+    normals : str
+        Where the normals came from: ``"estimated"`` or ``"given"``, then ``", re-oriented"`` when
+        the given signs disagreed between neighbours (``MAX_SIGN_DISAGREEMENT``) and ``", flipped"``
+        when they pointed inward.
     smoothed : bool
         Whether the noise-smoothing pass ran.
     filtered : bool
@@ -135,6 +148,7 @@ class PointCloudInfo:
     spacing: float
     noise: float
     noisy: bool
+    normals: str
     smoothed: bool
     filtered: bool
     target: str
@@ -143,6 +157,14 @@ class PointCloudInfo:
     seconds: dict
     surface: tuple = field(repr=False, compare=False)
     snap: bool
+
+
+def report_phase(progress: bool, phase: str, text: str, seconds: float | None = None) -> None:
+    """One line on stderr for a phase, with its time when finished, when ``progress`` (beside any tqdm bar)."""
+    if progress:
+        from tqdm import tqdm
+
+        tqdm.write(f"voro3d {phase:<8} {text}" + ("" if seconds is None else f" ({seconds:.1f} s)"), file=sys.stderr)
 
 
 def max_supported_grid(spacing: float) -> int:
@@ -161,9 +183,11 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
                        seed: int | None = None, device: str | None = None, denoise=None, progress: bool = False):
     """VoroMesh of a point cloud, through a smooth target surface.
 
-    1. Outliers out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
+    1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), outliers out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
        measured; a cloud that fills a volume instead of sampling a surface is refused.
-    2. Normals: the given ones, else estimated and oriented (:func:`estimate_normals`).
+    2. Normals: the given ones, checked (signs inconsistent between neighbours: re-oriented,
+       :func:`~voro3d.pointcloud.normals.orient_normals`; all inward: flipped), else estimated
+       and oriented (:func:`estimate_normals`).
     3. On a noisy cloud, IMLS (its kernel spans several noise deviations) smooths the normals
        (a second pass where they mostly agree, ``MIN_NORMAL_AGREEMENT``), then moves the points
        onto the smooth surface and replaces their normals with the field's.
@@ -189,7 +213,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         As in :func:`voro3d.fit` (defaults 400, 0, ``"cpu"``); refused with ``method="learned"``,
         which uses none of them.
     progress : bool
-        As in :func:`voro3d.fit`.
+        As in :func:`voro3d.fit`, and one line on stderr per phase (clean, normals, target, fit)
+        with what it chose and its time.
     denoise : bool or None
         The smoothing pass of step 3: None turns it on above ``NOISY`` spacings of estimated
         fine-scale noise, and for sparse one-sided scans; True or False force it. The target's
@@ -219,6 +244,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     seconds = {}
     start = time.perf_counter()
     n_points = points.shape[0]
+    points, normals = merge_duplicates(points, normals)
     outliers = outlier_mask(fit_frame(points).apply(points))
     if n_points - outliers.sum() < MIN_POINTS:
         raise ValueError(f"{int(outliers.sum())} of {n_points} points look like outliers; fewer than {MIN_POINTS} "
@@ -241,11 +267,21 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
                          "fitted to them")
     grid = _choose_grid(grid, stats.median_spacing)
     seconds["clean"] = time.perf_counter() - start
+    report_phase(progress, "clean", f"{len(points):,} points kept of {n_points:,} ({int(outliers.sum()):,} outliers), "
+                 f"spacing {stats.median_spacing / frame.scale:.3g}, noise {stats.noise / frame.scale:.3g}, grid {grid}",
+                 seconds["clean"])
 
     start = time.perf_counter()
     if normals is None:
-        normals = estimate_normals(framed)
+        normals, normal_source = estimate_normals(framed), "estimated"
+    elif sign_disagreement(framed, normals, tree=tree) > MAX_SIGN_DISAGREEMENT:
+        # Normals whose signs were never made consistent (a bare estimate_normals(), say):
+        # their axes are kept, their signs set as for our own.
+        normals, normal_source = orient_normals(framed, normals), "given, re-oriented"
+    else:
+        normal_source = "given"
     seconds["normals"] = time.perf_counter() - start
+    report_phase(progress, "normals", normal_source, seconds["normals"])
 
     start = time.perf_counter()
     noisy = stats.fine_noise > NOISY * stats.median_spacing
@@ -257,6 +293,12 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     per_spacing = TRUSTED_WIDTH_PER_SPACING if trusted and not dense else WIDTH_PER_SPACING
     widths = np.maximum(per_spacing * stats.spacing, WIDTH_PER_NOISE * stats.noise)
     level = winding_level(framed, normals, point_areas(framed), float(np.median(widths)))
+    if level < -CLOSED_LEVEL:
+        # Consistent normals of a closed surface that all point inward (the global sign of a
+        # tangent-plane orientation is arbitrary): the winding number reads -1 inside.
+        normals, level = -normals, -level
+        normal_source += ", flipped"
+    level = min(max(level, 0.0), 0.5)
     closed = level > CLOSED_LEVEL
     # The smoothing pass: noisy points onto their smooth surface. One-sided scans also get it
     # when sparse (normals that agree across a sharp edge); dense clean clouds keep their points
@@ -288,6 +330,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     _check_coverage(target, framed, widths)
     surface_vertices = target.project(target.vertices)
     seconds["surface"] = time.perf_counter() - start
+    report_phase(progress, "target", f"{kind}{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
+                 f"{'closed' if closed else 'open'} (winding level {level:.2f}), smoothing {'on' if smoothed else 'off'}, "
+                 f"filter {'on' if filtered and kind == 'poisson' else 'off'}", seconds["surface"])
 
     start = time.perf_counter()
     if method == "learned":
@@ -302,16 +347,17 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         shape, _ = fit_samples(samples, target.inside, grid, frame=frame, progress=progress, **fit_options)
         shape = _drop_stray_cells(shape)
         seconds["fit"] = time.perf_counter() - start
+    report_phase(progress, "fit", f"{method}, {len(shape.generators):,} generators", seconds["fit"])
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
-                          noisy=bool(noisy), smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
+                          noisy=bool(noisy), normals=normal_source, smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
                           target=kind, grid=grid,
                           voxel=2.0 / (grid - 1) / frame.scale, seconds=seconds,
                           surface=(frame.invert(surface_vertices), target.triangles), snap=not target.dense)
     return shape, info
 
 
-def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True):
+def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True, progress: bool = False):
     """The watertight mesh of :func:`reconstruct_points`' VoroMesh.
 
     Parameters
@@ -323,6 +369,8 @@ def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True):
         Clean the surface (:func:`voro3d.cleaning.clean`) and, where ``info.snap``, fit its
         vertices to the target surface (:func:`voro3d.snapping.snap_to_surface`: at most a
         quarter voxel, no triangle flipped, thinned or crossing; smoothed where ``info.noisy``).
+    progress : bool
+        One line on stderr when done, as in :func:`reconstruct_points`.
 
     Returns
     -------
@@ -331,8 +379,13 @@ def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True):
     """
     from ..snapping import NOISY_SMOOTHING
 
-    return shape.to_open3d(clean=clean, surface=info.surface if info.snap else None,
+    start = time.perf_counter()
+    mesh = shape.to_open3d(clean=clean, surface=info.surface if info.snap else None,
                            smoothing=NOISY_SMOOTHING if info.noisy else 0.0)
+    report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight"
+                 f"{'' if not clean else ', cleaned and fitted to the target' if info.snap else ', cleaned'}",
+                 time.perf_counter() - start)
+    return mesh
 
 
 def _fit_samples(target, surface_vertices, points, grid: int, *, seed: int) -> np.ndarray:

@@ -316,7 +316,7 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     index = (nodes[far] + 1.0) * (0.5 * (coarse_resolution - 1))
     winding = ndimage.map_coordinates(coarse, index.T, order=1, mode="nearest")
     if level is None:
-        level = winding_level(points, normals, areas, float(np.median(widths)))
+        level = float(np.clip(winding_level(points, normals, areas, float(np.median(widths))), 0.0, 0.5))
     field[far] = (level - winding) * 2.0 * float(np.median(widths))
     field = field.reshape((resolution,) * 3)
     supported, vertices, triangles = _mesh_field(field, points, min_support)
@@ -331,14 +331,15 @@ def winding_level(points, normals, areas, offset: float, *, n_probes: int = 2000
     the level is 0.5. An open scan (one side of an object, a relief) reads about +0.5 behind and
     -0.5 in front, where 0.5 would find no inside at all; the level is then about 0, and the
     solid is what lies behind the scanned side. So the level is the midpoint of the median
-    winding numbers ``offset`` behind and in front of (up to ``n_probes``) points.
+    winding numbers ``offset`` behind and in front of (up to ``n_probes``) points. Normals that
+    point inward turn every winding number's sign: a closed cloud then reads about -0.5.
     """
     from ..queries import point_winding_number
 
     probes = np.random.default_rng(0).permutation(points.shape[0])[:n_probes]
     behind = point_winding_number(points, normals, points[probes] - offset * normals[probes], areas=areas)
     front = point_winding_number(points, normals, points[probes] + offset * normals[probes], areas=areas)
-    return float(np.clip(0.5 * (np.median(behind) + np.median(front)), 0.0, 0.5))
+    return float(0.5 * (np.median(behind) + np.median(front)))
 
 
 def supported_pieces(vertices, triangles, points, *, min_support: int = MIN_SUPPORT):
