@@ -231,4 +231,21 @@ def test_objects_far_apart_each_get_their_own_grid():
     alone = reconstruct(points, grid=16, steps=60)
     assert check_watertight(out).watertight
     assert abs(len(out.triangles) - 2 * len(alone.triangles)) < 0.05 * len(out.triangles)
-    assert abs(out.get_volume() - 2 * alone.get_volume()) < 0.01 * out.get_volume()
+    from voro3d.watertight import signed_volume
+
+    volume, single = (signed_volume(np.asarray(m.vertices), np.asarray(m.triangles)) for m in (out, alone))
+    assert abs(volume - 2 * single) < 0.01 * volume
+
+
+def test_a_mesh_far_off_its_points_is_refused():
+    from voro3d.reconstruction import _check_fit
+
+    sphere = example_mesh("sphere")
+    points, _ = sample_surface(sphere, 2000, seed=0)
+    _check_fit(sphere, points, 0.05)
+    box = o3d.geometry.TriangleMesh.create_box(4.0, 4.0, 4.0).translate([-2.0, -2.0, -2.0])
+    with pytest.raises(ValueError, match="times the volume of the points' convex hull"):
+        _check_fit(box, points, 0.05)
+    moved = o3d.geometry.TriangleMesh(sphere).translate([0.3, 0.0, 0.0])
+    with pytest.raises(ValueError, match="voxels from the median point"):
+        _check_fit(moved, points, 0.05)
