@@ -49,12 +49,24 @@ CONDITIONS = {
     "density ramp 20x": ("ramp", 100_000, 20.0),
     "outliers 2%": ("outliers", 50_000, 0.02),
     "third missing": ("hole", 50_000, 1 / 3),
+    "range scan 1 view": ("range", 30_000, 1),
+    "range scan 3 views": ("range", 30_000, 3),
+    "range scan 6 views": ("range", 30_000, 6),
 }
+# The virtual range scanner (make_cloud's "range" kind): a pinhole camera of this field of view and
+# pixel count looking at the shape's centre from RANGE_DISTANCE diagonals away; hits whose surface
+# turns more than RANGE_GRAZING degrees from the ray are dropped (a scanner gets no return there),
+# and depth noise of RANGE_NOISE of the diagonal is added along the ray.
+RANGE_FOV = 40.0
+RANGE_PIXELS = (256, 256)
+RANGE_DISTANCE = 1.6
+RANGE_GRAZING = 75.0
+RANGE_NOISE = 0.0005
 COLOURED = "clean 20k"
 PICTURED = ("organic_bunny.off", "cad_fandisk.obj")
 # Seconds given to Open3D's normal orientation before the baseline falls back to ours.
 ORIENT_TIMEOUT = 120
-PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing")
+PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views")
 
 
 def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
@@ -67,6 +79,8 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     kind, n, parameter = CONDITIONS[condition]
     vertices, triangles = mesh_arrays(mesh)
     rng = np.random.default_rng(seed + 1)
+    if kind == "range":
+        return range_scan(vertices, triangles, parameter, n, rng)
     if kind == "ramp":
         points, _ = sample_surface((vertices, triangles), 4 * n, seed=seed)
         along = (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
@@ -84,6 +98,45 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     if kind == "outliers":
         points = np.vstack([points, rng.uniform(vertices.min(0), vertices.max(0), (int(parameter * n), 3))])
     return points
+
+
+def range_scan(vertices, triangles, views: int, n: int, rng) -> np.ndarray:
+    """Points a range scanner sees from ``views`` viewpoints (at most ``n`` in all, drawn evenly).
+
+    Viewpoints: one for 1; otherwise spread in longitude around the vertical at 30 degrees of
+    elevation (3 views), or the six directions of a cube, turned at random. Each camera casts
+    Open3D's pinhole rays (``RaycastingScene.create_rays_pinhole``) at the shape's centre.
+    """
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    centre = 0.5 * (vertices.min(0) + vertices.max(0))
+    diagonal = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    if views == 6:
+        rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        directions = np.vstack([np.eye(3), -np.eye(3)]) @ rotation.T
+    else:
+        longitude = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(views) / views
+        elevation = np.radians(30.0)
+        directions = np.c_[np.cos(elevation) * np.cos(longitude), np.cos(elevation) * np.sin(longitude),
+                           np.full(views, np.sin(elevation))]
+    found = []
+    for direction in directions:
+        eye = centre + RANGE_DISTANCE * diagonal * direction
+        up = np.array([0.0, 0.0, 1.0]) if abs(direction[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        rays = scene.create_rays_pinhole(RANGE_FOV, centre.tolist(), eye.tolist(), up.tolist(), *RANGE_PIXELS).numpy()
+        rays = rays.reshape(-1, 6)
+        hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
+        depth = hit["t_hit"].numpy()
+        normal = hit["primitive_normals"].numpy()
+        unit = rays[:, 3:] / np.linalg.norm(rays[:, 3:], axis=1, keepdims=True)
+        seen = np.isfinite(depth) & (np.abs(np.einsum("ij,ij->i", normal, unit)) > np.cos(np.radians(RANGE_GRAZING)))
+        distance = depth[seen] * np.linalg.norm(rays[seen, 3:], axis=1) + rng.normal(scale=RANGE_NOISE * diagonal,
+                                                                                   size=int(seen.sum()))
+        found.append(rays[seen, :3] + distance[:, None] * unit[seen])
+    points = np.vstack(found)
+    return points[rng.permutation(len(points))[:n]]
 
 
 def position_colours(points, low, high):
@@ -183,6 +236,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
     from voro3d.io import mesh_arrays, save_mesh
     from voro3d.metrics import evaluate
     from voro3d.pointcloud import cloud_mesh, reconstruct_points, transfer_colors
+    from voro3d.reconstruction import _check_fit
     from voro3d.watertight import check_watertight
 
     points = make_cloud(source, condition)
@@ -194,6 +248,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
     try:
         shape, info = reconstruct_points(points, grid=grid, progress=False)
         mesh = cloud_mesh(shape, info)
+        _check_fit(mesh, points, info.voxel)  # what reconstruct refuses is an error here too
         if colours is not None:
             mesh.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(mesh.vertices), points, colours))
         seconds = time.perf_counter() - start

@@ -77,6 +77,16 @@ def test_estimated_normals_of_separate_pieces_each_point_outward():
     assert (agreement > 0.9).mean() > 0.98
 
 
+def test_estimated_normals_of_a_bust_keep_its_base_outward(dev_meshes):
+    """A bust whose flat base meets the chest at a shallow angle: one smooth patch reached across
+    the thin wedge and carried the base in with the wrong sign (20% of the normals)."""
+    from voro3d.io import load_mesh
+
+    points, normals = sample_surface(load_mesh(dev_meshes / "thingi32_75655.obj"), 30000, seed=0)
+    agreement = np.einsum("ij,ij->i", estimate_normals(points), normals)
+    assert (agreement < 0).mean() < 0.03
+
+
 def test_estimated_normals_survive_noise(torus_cloud):
     _, points, normals = torus_cloud
     noisy = points + np.random.default_rng(0).normal(scale=0.005, size=points.shape)

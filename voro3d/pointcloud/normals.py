@@ -212,12 +212,31 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
               & (np.abs(np.einsum("ij,ij->i", step, normals[tree.col])) < 0.3))
     patches, patch = connected_components(coo_matrix((np.ones(int(smooth.sum())), (tree.row[smooth], tree.col[smooth])),
                                                      shape=(n, n)), directed=False)
-    votes = np.bincount(patch, weights=_outside_votes(points, normals, float(np.median(distances[:, graph_k]))),
-                        minlength=patches)
-    # Only a clear verdict flips: near thin walls most probes cannot tell, and a few can mislead.
-    flip = votes < -0.25 * np.bincount(patch, minlength=patches)
-    normals[flip[patch]] *= -1.0
+    vote = _outside_votes(points, normals, float(np.median(distances[:, graph_k])))
+    _flip_patches(normals, vote, patch)
+    # A patch can still reach across a thin wedge (the base of a bust meeting its chest at a
+    # shallow angle) and carry a wrong face in with a right one: the points no probe calls right
+    # are grouped again along the same smooth edges, and such a group votes on its own.
+    # On the 38 dev meshes (30k / 5k clean points, 20k at 0.5% noise) wrongly signed normals went
+    # from 2.71% / 5.88% / 3.43% to 1.70% / 5.55% / 3.39% on average: the bust thingi32_75655
+    # 20.2% -> 1.5%, thingi32_75656 21.1% -> 0.7%, at most +1.9 points elsewhere (abc_00000006
+    # noisy); grouping the points that vote against only (not the undecided) gained less (1.73% /
+    # 5.66% / 3.32%).
+    doubtful = vote <= 0
+    inner = smooth & doubtful[tree.row] & doubtful[tree.col]
+    groups, group = connected_components(coo_matrix((np.ones(int(inner.sum())), (tree.row[inner], tree.col[inner])),
+                                                    shape=(n, n)), directed=False)
+    _flip_patches(normals, vote, np.where(doubtful, group, groups))  # the rest, all +1, never flips
     return normals
+
+
+def _flip_patches(normals, vote, patch) -> None:
+    """Flips, in place, the normals and votes of each patch whose points clearly vote that they point inward."""
+    count = np.bincount(patch)
+    # Only a clear verdict flips: near thin walls most probes cannot tell, and a few can mislead.
+    flip = (np.bincount(patch, weights=vote, minlength=len(count)) < -0.25 * count)[patch]
+    normals[flip] *= -1.0
+    vote[flip] *= -1.0
 
 
 def _outside_votes(points, normals, voxel):
