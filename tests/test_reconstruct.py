@@ -253,7 +253,7 @@ def test_a_mesh_far_off_its_points_is_refused():
     sphere = example_mesh("sphere")
     points, _ = sample_surface(sphere, 2000, seed=0)
     _check_fit(sphere, points, 0.05)
-    box = o3d.geometry.TriangleMesh.create_box(4.0, 4.0, 4.0).translate([-2.0, -2.0, -2.0])
+    box = o3d.geometry.TriangleMesh.create_box(6.0, 6.0, 6.0).translate([-3.0, -3.0, -3.0])
     with pytest.raises(ValueError, match="times the volume of the points' convex hull"):
         _check_fit(box, points, 0.05)
     moved = o3d.geometry.TriangleMesh(sphere).translate([0.3, 0.0, 0.0])

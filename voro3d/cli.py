@@ -199,7 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     predict.set_defaults(run=_predict)
 
     rebuild = commands.add_parser("reconstruct", help="watertight mesh from a point cloud (or mesh) file")
-    rebuild.add_argument("input", help="point cloud (.ply .pcd .xyz .xyzn .pts, .npy (n,3)/(n,6)) or mesh")
+    rebuild.add_argument("input", help="point cloud (.ply .pcd .xyz .xyzn .xyzrgb .pwn .pts; .npy (n,3)/(n,6)) or mesh")
     _mesh_output_options(rebuild)
     rebuild.add_argument("--grid", type=_grid_or_auto, default="auto",
                          help="grid resolution, or 'auto' (default: from the point spacing, 32-64; 32 for meshes)")

@@ -222,13 +222,10 @@ def load_mesh(path, *, weld: bool = True):
 def _text_points(path) -> np.ndarray:
     """(n, c) float64 from whitespace-separated text; a first line of one number (a count) is skipped."""
     with open(path) as stream:
-        first = stream.readline().split()
+        skip = int(len(stream.readline().split()) == 1)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
-        array = np.loadtxt(path, dtype=np.float64, ndmin=2, skiprows=1 if len(first) == 1 else 0, comments="#")
-    if array.size == 0:
-        raise ValueError("it holds no points")
-    return array
+        warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data": refused by the caller
+        return np.loadtxt(path, dtype=np.float64, ndmin=2, skiprows=skip, comments="#")
 
 
 def load_points(path):
@@ -263,10 +260,9 @@ def load_points(path):
         try:
             array = np.load(path, allow_pickle=False) if suffix == ".npy" else _text_points(path)
         except (ValueError, OSError, EOFError) as error:
-            raise ValueError(f"{path} could not be read as {'a .npy array' if suffix == '.npy' else 'x y z [nx ny nz] lines'}"
-                             f": {error}") from None
-        if array.ndim != 2 or array.shape[1] not in (3, 6):
-            raise ValueError(f"{path} must hold an array of shape (n, 3) or (n, 6), got {array.shape}")
+            raise ValueError(f"{path} could not be read as {'a .npy array' if suffix == '.npy' else 'x y z lines'}: {error}") from None
+        if array.ndim != 2 or array.shape[1] not in (3, 6) or len(array) == 0:
+            raise ValueError(f"{path} could not be read: it must hold an array of shape (n, 3) or (n, 6), got {array.shape}")
         array = as_points(array.reshape(-1, 3), str(path)).reshape(-1, array.shape[1])
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(array[:, :3]))
         if array.shape[1] == 6:
@@ -275,8 +271,7 @@ def load_points(path):
     with _quiet():
         cloud = o3d.io.read_point_cloud(str(path))
     if len(cloud.points) == 0:
-        raise ValueError(f"{path} could not be read as a point cloud (corrupt or empty; readable formats are "
-                         f"{', '.join(POINT_SUFFIXES)})")
+        raise ValueError(f"{path} could not be read as a point cloud (corrupt or empty; formats: {', '.join(POINT_SUFFIXES)})")
     as_points(np.asarray(cloud.points), str(path))
     if cloud.has_normals() and not np.isfinite(np.asarray(cloud.normals)).all():
         raise ValueError(f"{path} holds NaN or inf normals")

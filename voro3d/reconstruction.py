@@ -13,19 +13,12 @@ import numpy as np
 
 from ._validate import as_points, method_options, positive_int
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
+from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
 # Meshes have no spacing to choose a grid from: grid="auto" is this.
 MESH_AUTO_GRID = 32
-# A cloud's mesh is refused, not returned, when it encloses more than this many times the volume
-# of the points' convex hull (a balloon around them), or when the median point lies more than
-# this many voxels off it. Measured on outputs that are right (3 dev meshes x clean 5k / noise 1% /
-# outliers 2% / third missing, the 4 dev scans): volume 0.28-0.91 of the hull, 2.17 for
-# point_set_3 (its unseen underside closed below the base plane); median distance 0.009-0.23
-# voxel. A torus whose estimate_normals() signs were trusted (before the sign check) read 7.5.
-MAX_HULL_VOLUME = 3.0
-MAX_MEDIAN_DISTANCE = 1.0
 
 
 def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,

@@ -26,85 +26,18 @@ from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, f
                          outlier_mask)
 from .poisson import poisson_depth, poisson_surface
 from .surface import imls, sheet_surface, target_surface, winding_level
+from .tuning import (WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
+                     MAX_SIGN_DISAGREEMENT, NOISY, HEAVY_NOISE, FILTER_WIDTH_PER_NOISE,
+                     AUTO_SPACINGS_PER_VOXEL, AUTO_GRID_RANGE, MIN_SPACINGS_PER_VOXEL, DENSE_SPACINGS,
+                     HOLE_VOXELS, STRAY_CELL_SHARE, CLOSED_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE,
+                     FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN,
+                     SHEET_OFFSET)
 
 __all__ = ["PointCloudInfo", "reconstruct_points", "cloud_mesh", "auto_grid", "max_supported_grid", "transfer_colors"]
 
 MIN_POINTS = 100
 # The VoroLoss fit of the target samples, or the learned model on the target's SDF grid.
 METHODS = ("fit", "learned")
-# Kernel width of a point: this many local spacings, or this many noise standard deviations.
-# Sparse clean clouds (no noise, under MAX_TRUSTED_OUTLIERS of strays) get the narrower width:
-# on 5k-point clouds of the bunny and fandisk it cut the CD 2-4 times against 1.5 spacings,
-# which noisy clouds and clouds with strays need (fandisk at 0.5% noise: CD 2.9 vs 6.3 at 1.0).
-WIDTH_PER_SPACING = 1.5
-TRUSTED_WIDTH_PER_SPACING = 0.75
-WIDTH_PER_NOISE = 4.0
-MAX_TRUSTED_OUTLIERS = 0.01
-# A noisy cloud gets a second IMLS pass from the normals of the first before its points move (moving
-# them twice shrinks curved parts: bunny and armadillo at 0.5% noise, CD +16-24%). On four dev shapes
-# at 0.5% noise: the target's CD 4-9% lower, NC +0.010-0.012, triangles > 30 deg off the true normal
-# 8.4-8.9% -> 5.5% (bunny, rocker-arm); a third pass gains no more. Not where the first pass's mean
-# normals mostly cancel (median length under this): the two sides of walls thinner than the noise,
-# whose normals the second pass mixes (a cup lid at 1% noise: 0.46, CD 21 -> 64 with it; other dev
-# shapes at 0.25-1% noise read 0.64-0.98).
-MIN_NORMAL_AGREEMENT = 0.6
-# Given normals whose signs disagree between this share of neighbours on one sheet
-# (:func:`~voro3d.pointcloud.normals.sign_disagreement`) are re-oriented by our orienter. 30k points
-# of each of the 38 dev meshes: their true normals read 0-0.0045 (0-0.029 with 0.5% noise), but for
-# abc_00000001 (0.18: its triangles are not consistently oriented); random signs 0.50; Open3D's
-# estimate_normals() on the noisy clouds, as a user runs it, 0.156-0.364; our own orientation of those
-# clouds 0-0.076.
-MAX_SIGN_DISAGREEMENT = 0.1
-# Fine-scale noise above this share of the spacing turns on the smoothing pass (denoise=None):
-# clean dev clouds read under 0.075, 0.25% noise and more at least 0.19.
-NOISY = 0.13
-# Noise over this many cells of the Poisson octree (2 / 2^depth in the fit frame; four dev shapes,
-# 20k points: 0.61-0.66 at 0.25% of the diagonal, 1.06-1.09 at 0.5%, 1.46-1.59 at 1%) leaves bumps
-# the target resolves: it is bilateral-filtered (pointcloud.denoise) over FILTER_WIDTH_PER_NOISE
-# noise deviations. On the four at 0.5% and 1% noise: CD 3-15% lower but armadillo at 0.5% (+0.7%),
-# triangles over 30 degrees off the true normal 10.0% -> 8.9% (0.5%) and 23.1% -> 18.3% (1%), NC
-# +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 4-10% on three, hence the gate.
-HEAVY_NOISE = 0.85
-FILTER_WIDTH_PER_NOISE = 2.0
-# grid="auto": voxels about this many median spacings wide, within these bounds.
-AUTO_SPACINGS_PER_VOXEL = 2.5
-AUTO_GRID_RANGE = (32, 64)
-# A voxel narrower than the median spacing has empty voxels all over the surface.
-MIN_SPACINGS_PER_VOXEL = 1.0
-# Clean points closer than this share of a voxel are dense: exact samples themselves, and their
-# winding number decides inside near the surface (:class:`~voro3d.pointcloud.surface.TargetSurface`).
-DENSE_SPACINGS = 1 / 3
-# Proxy samples fill the holes of a dense cloud where no point is within this many voxels (nearer,
-# they only blur the exact points: 2 spacings added 13% proxy samples on organic_arm, NC 0.979 -> 0.968).
-HOLE_VOXELS = 1.0
-# Inside cells in groups (joined by Voronoi faces) of fewer cells than this share of the largest
-# group's are strays: cells whose label the samples nearby could not settle.
-STRAY_CELL_SHARE = 0.02
-# Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points
-# enclose a volume (0.5 closed, about 0 for a one-sided scan): their target is screened Poisson.
-CLOSED_LEVEL = 0.25
-# A Poisson surface that runs further than this share of the diagonal out of the points' box is
-# refused (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`).
-MAX_POISSON_ESCAPE = 0.08
-# Share of the points that must lie on the target surface (within two kernel widths).
-MIN_COVERAGE = 0.9
-# The target field is sampled this many times finer than the VoroMesh grid (at most MAX).
-FIELD_REFINEMENT = 2
-MAX_FIELD_RESOLUTION = 160
-# The offset shell (sheet_surface) is tried when the target misses the points both ways: the
-# points lie on average more than SHEET_POINTS_GATE median spacings from it and its surface more
-# than SHEET_SURFACE_GATE from them. A lid with walls thinner than the spacing reads 0.37-0.62 and
-# 4.2-6.6; clouds that come out right read under 0.08 for the first (holes, real scans: their
-# filled holes lie far from the points, 6-67 spacings for a scan's open side) or under 0.6 for
-# the second (1% noise: the points scatter about the surface, 0.55). The shell replaces the
-# target when its misfit (mean distance points -> surface + surface -> points) is under
-# SHEET_WIN times the target's (the lid: 0.2-0.55).
-SHEET_POINTS_GATE = 0.15
-SHEET_SURFACE_GATE = 2.0
-SHEET_WIN = 0.65
-# Its offset: this many median spacings, at least a field step. (The noise estimate is no guide
-# there: it reads the two sides of the walls as noise.)
-SHEET_OFFSET = 1.25
 
 
 @dataclass(frozen=True)
@@ -183,7 +116,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
                        seed: int | None = None, device: str | None = None, denoise=None, progress: bool = False):
     """VoroMesh of a point cloud, through a smooth target surface.
 
-    1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), outliers out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
+    1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), outliers
+       out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
        measured; a cloud that fills a volume instead of sampling a surface is refused.
     2. Normals: the given ones, checked (signs inconsistent between neighbours: re-oriented,
        :func:`~voro3d.pointcloud.normals.orient_normals`; all inward: flipped), else estimated
