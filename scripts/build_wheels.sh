@@ -46,7 +46,10 @@ build_one() {
 
 mkdir -p "$OUT"
 if [ $# -eq 0 ]; then
-    set -- $(for version in 3.10 3.11 3.12 3.13; do find_python "$version"; done)
+    for version in 3.10 3.11 3.12 3.13; do
+        found=$(find_python "$version")  # an assignment, so that a missing version stops the build (set -e)
+        set -- "$@" "$found"
+    done
 fi
 for python in "$@"; do
     build_one "$python"
