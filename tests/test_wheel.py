@@ -1,6 +1,7 @@
 """The binary wheel, built and repaired as `make wheels` builds it, then installed into a fresh virtual
 environment with no compiler on PATH, the system's GMP and MPFR hidden and no torch: there the
 `voro3d` command reconstructs a cloud, fits a mesh, predicts, extracts and runs a batch."""
+import importlib.metadata
 import json
 import os
 import shutil
@@ -23,7 +24,24 @@ COMPILERS = ("cc", "c++", "gcc", "g++", "clang", "clang++")
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> Path:
+def dependencies(tmp_path_factory):
+    """A fresh virtual environment, its installing of voro3d's dependencies begun (from pip's cache or
+    PyPI), or None where the isolation cannot be had: started before the wheel is built, so the two overlap."""
+    if _isolation_missing():
+        yield None
+        return
+    venv = tmp_path_factory.mktemp("venv") / "env"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    requires = [line for line in importlib.metadata.requires("voro3d") if "extra ==" not in line]
+    install = subprocess.Popen([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", "--disable-pip-version-check",
+                                *requires], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    yield venv, install
+    install.kill()
+    install.communicate()
+
+
+@pytest.fixture(scope="module")
+def wheel(dependencies, tmp_path_factory) -> Path:
     """One wheel, for this interpreter, from scripts/build_wheels.sh (offline: the dev extra has the tools)."""
     folder = tmp_path_factory.mktemp("wheel")
     skip = shutil.ignore_patterns("__pycache__", "*.so", "*.egg-info", "*.pyc")
@@ -76,13 +94,14 @@ def _isolation_missing() -> str | None:
 
 
 @pytest.fixture(scope="module")
-def fresh_venv(wheel, tmp_path_factory) -> Path:
-    """A new virtual environment holding the wheel and its dependencies (from pip's cache or PyPI), no torch."""
-    reason = _isolation_missing()
-    if reason:
-        pytest.skip(reason)
-    venv = tmp_path_factory.mktemp("venv") / "env"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+def fresh_venv(wheel, dependencies) -> Path:
+    """The fresh virtual environment holding the wheel and its dependencies, no torch."""
+    if dependencies is None:
+        pytest.skip(_isolation_missing())
+    venv, started = dependencies
+    output, _ = started.communicate(timeout=600)
+    assert started.returncode == 0, output
+    # With its dependencies (all there now), so that the wheel's own metadata is what pip resolves.
     install = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", "--disable-pip-version-check",
                               str(wheel)], capture_output=True, text=True, timeout=600)
     assert install.returncode == 0, install.stderr
