@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench clean
+.PHONY: demo test test-slow wheels bench clean
 
 $(STAMP): pyproject.toml
 	bash scripts/install.sh
@@ -18,6 +18,10 @@ test: $(STAMP)
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q tests --slow
+
+# Binary wheels for CPython 3.10-3.13 into wheelhouse/ (manylinux_2_34_x86_64, GMP and MPFR bundled).
+wheels:
+	bash scripts/build_wheels.sh
 
 clean:
 	rm -rf out .pytest_cache

@@ -15,7 +15,7 @@ fi
 
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-# A CPU build of torch first, so the package's torch>=2.2 is already met (no multi-GB CUDA wheel).
+# A CPU build of torch first, so the torch extra's torch>=2.2 is already met (no multi-GB CUDA wheel).
 if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
     if command -v nvidia-smi >/dev/null 2>&1; then
         .venv/bin/python -m pip install -q "torch>=2.2"
@@ -23,5 +23,5 @@ if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
         .venv/bin/python -m pip install -q torch==2.13.0
     fi
 fi
-# The Ray extra is installed too so that the tests cover `voro3d batch --engine ray`.
-.venv/bin/python -m pip install -q -e ".[dev,ray]"
+# Every extra, so that the tests cover training and ONNX export (torch, onnx) and `voro3d batch --engine ray`.
+.venv/bin/python -m pip install -q -e ".[torch,onnx,ray,dev]"

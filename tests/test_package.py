@@ -1,9 +1,6 @@
 """The package surface: light import, every public name resolves, CLI errors are one line."""
-import os
-import shutil
 import subprocess
 import sys
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -136,57 +133,3 @@ def test_public_functions_survive_submodule_imports():
         importlib.import_module(f"voro3d.{module}")
     assert callable(voro3d.fit) and callable(voro3d.reconstruct) and callable(voro3d.evaluate)
     assert not any(isinstance(getattr(voro3d, name), type(voro3d)) for name in voro3d.__all__)
-
-
-ROOT = Path(__file__).resolve().parents[1]
-# Run in a fresh interpreter: torch cannot be imported, and the installed wheel comes first on sys.path.
-_PREDICT_FROM_WHEEL = """
-import sys
-
-class BlockTorch:
-    def find_spec(self, name, path=None, target=None):
-        if name == "torch" or name.startswith("torch."):
-            raise ImportError(f"{name} is blocked in this test")
-
-sys.meta_path.insert(0, BlockTorch())
-sys.path.insert(0, sys.argv[1])
-import numpy as np
-import voro3d
-from voro3d.infer import DEFAULT_MODEL
-
-g = 24
-axis = np.linspace(-1.0, 1.0, g)
-x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
-sdf = (np.sqrt(x * x + y * y + z * z) - 0.55).astype(np.float32)
-report = voro3d.check_watertight(voro3d.predict(sdf).to_open3d())
-print(voro3d.__file__, DEFAULT_MODEL, report.watertight, "torch" in sys.modules, sep="\\n")
-"""
-
-
-def test_wheel_carries_the_model_and_predicts_without_torch(tmp_path):
-    """Build the wheel offline, install it into an empty folder and predict from there."""
-    source = tmp_path / "source"
-    source.mkdir()
-    for name in ("pyproject.toml", "setup.py", "README.md"):
-        shutil.copy2(ROOT / name, source / name)
-    skip = shutil.ignore_patterns("__pycache__", "*.so", "*.egg-info", "*.pyc")
-    for name in ("src", "voro3d"):
-        shutil.copytree(ROOT / name, source / name, ignore=skip)
-    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    subprocess.run([*pip, "wheel", str(source), "--no-deps", "--no-build-isolation", "--no-index",
-                    "-w", str(tmp_path / "dist")], check=True, capture_output=True, timeout=300)
-    (wheel,) = (tmp_path / "dist").glob("voro3d-*.whl")
-    with zipfile.ZipFile(wheel) as archive:
-        assert "voro3d/models/voromesh_sdf.onnx" in archive.namelist()
-    target = tmp_path / "site"
-    subprocess.run([*pip, "install", "--no-deps", "--no-index", "--target", str(target), str(wheel)],
-                   check=True, capture_output=True, timeout=120)
-
-    result = subprocess.run([sys.executable, "-c", _PREDICT_FROM_WHEEL, str(target)], cwd=tmp_path,
-                            capture_output=True, text=True, timeout=120,
-                            env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
-    assert result.returncode == 0, result.stderr
-    package, model, watertight, torch_loaded = result.stdout.split()
-    assert Path(package).parent == target / "voro3d"
-    assert Path(model) == target / "voro3d" / "models" / "voromesh_sdf.onnx"
-    assert (watertight, torch_loaded) == ("True", "False")

@@ -20,8 +20,9 @@ __all__ = ["KernelLoop", "NumpyAdam", "cpu_threads", "spatial_order"]
 def cpu_threads() -> int:
     """Threads for the kernel: torch's setting when torch is loaded (a caller, such as a batch
     worker, may have set it), else ``OMP_NUM_THREADS``, else the CPUs this process may run on."""
-    if "torch" in sys.modules:
-        return sys.modules["torch"].get_num_threads()
+    torch = sys.modules.get("torch")  # None where torch is blocked (sys.modules["torch"] = None)
+    if torch is not None:
+        return torch.get_num_threads()
     setting = os.environ.get("OMP_NUM_THREADS", "")
     if setting.isdigit() and int(setting) > 0:
         return int(setting)

@@ -10,6 +10,8 @@ import json
 import sys
 from pathlib import Path
 
+from ._extras import MissingExtra
+
 __all__ = ["build_parser", "main"]
 
 
@@ -273,7 +275,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         status = args.run(args)
-    except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as error:
+    except (ValueError, MissingExtra, FileNotFoundError, IsADirectoryError, PermissionError) as error:
         print(f"voro3d {args.command}: error: {error}", file=sys.stderr)
         return 2
     except RuntimeError as error:  # a failed internal check or worker: say it in one line too

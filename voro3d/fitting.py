@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._cpufit import KernelLoop, cpu_threads, spatial_order
+from ._extras import require
 from ._validate import as_points, positive_int
 from .extract import VoroMesh
 from .generators import initial_generators
@@ -144,6 +145,8 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     ValueError
         A bad argument (named in the message), a mesh that is open without ``allow_open``,
         or ``device`` asking for CUDA when none is available.
+    MissingExtra
+        ``device`` other than ``"cpu"`` without torch installed (an ``ImportError``: ``pip install 'voro3d[torch]'``).
 
     Notes
     -----
@@ -255,8 +258,7 @@ def _device(device) -> str:
     """``device`` checked: ``"cpu"``, which needs no torch, or the name of an available CUDA device."""
     if device == "cpu":
         return "cpu"
-    import torch
-
+    torch = require("torch", f"device={device!r}")
     try:
         torch_device = torch.device(device)
     except (RuntimeError, TypeError) as error:

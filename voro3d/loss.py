@@ -14,9 +14,11 @@ distance matrix).
 from __future__ import annotations
 
 import numpy as np
-import torch
 
+from ._extras import require
 from ._validate import as_points, positive_int
+
+torch = require("torch", "VoroLoss (voro3d.loss)")
 
 __all__ = ["DEFAULT_K", "KNN_BLOCK", "PAIR_BLOCK", "bisector_distance", "bisector_pairs", "knn_candidates",
            "nearest_indices", "nearest_indices_on_device", "voroloss"]

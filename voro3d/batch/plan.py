@@ -47,7 +47,7 @@ class ShapeTask:
     model : str or None
         Absolute path of the ONNX model for ``"learned"``.
     threads : int
-        Threads of the worker (torch for ``"fit"``, onnxruntime for ``"learned"``).
+        Threads of the worker (the fit kernel for ``"fit"``, onnxruntime for ``"learned"``).
     evaluate : bool
         Compute :func:`voro3d.metrics.evaluate` against the input.
     memory_limit_mb : int or None

@@ -6,6 +6,7 @@ import os
 import time
 from collections import deque
 
+from .._extras import require
 from .plan import ShapeTask, _remove_partials, _result
 from .worker import _prepare, process_shape
 
@@ -18,10 +19,7 @@ _RAY_CANCEL_WAIT = 30.0
 def run_ray(tasks: list, record, *, workers: int, timeout: float | None, address: str | None,
             prepare: tuple) -> None:
     """Run ``tasks`` as Ray tasks of :func:`~voro3d.batch.worker.process_shape`, calling ``record(task, result)`` as each ends."""
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("engine='ray' needs Ray: pip install 'voro3d[ray]'") from None
+    ray = require("ray", "engine='ray'")
 
     threads = prepare[2]
     started_here = not ray.is_initialized()

@@ -96,8 +96,10 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     ValueError
         A bad argument (named in the message), an option the method does not use (``steps``
         with ``"learned"``, ``model`` with ``"fit"``), no mesh file under ``input_dir``, two inputs
-        mapping to one output, another batch writing to ``output_dir``, Ray not installed, or a
-        worker unable to load the model.
+        mapping to one output, another batch writing to ``output_dir``, or a worker unable to load
+        the model.
+    MissingExtra
+        ``engine="ray"`` without Ray installed (an ``ImportError``: ``pip install 'voro3d[ray]'``).
     FileNotFoundError
         ``input_dir`` or ``model`` does not exist.
     KeyboardInterrupt

@@ -96,9 +96,8 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
 
     A unit box goes through the reconstruction, and one Voronoi cell (an octahedron: the origin
     inside, the cube's corners outside) through extraction, checks and metrics. That imports
-    torch, Open3D and what they import only on first use (torch's optimiser pulls in sympy), and
-    loads the ONNX session; an import cut short by the memory cap would leave a half-initialised
-    module behind for every later shape.
+    Open3D and what it imports only on first use, and loads the ONNX session; an import cut short
+    by the memory cap would leave a half-initialised module behind for every later shape.
     """
     import itertools
 
@@ -126,9 +125,8 @@ def _reconstruct(source, method: str, *, grid: int, steps: int | None, seed: int
     if method == "fit":
         from ..fitting import fit
 
-        import torch
-
-        torch.set_num_threads(threads)
+        # The fit kernel runs on OMP_NUM_THREADS threads (voro3d._cpufit.cpu_threads), which both
+        # engines set to ``threads``: a local worker before its first import, Ray to the task's CPUs.
         return fit(source, grid, steps=steps, seed=seed)[0]
     return _predictor(model, threads).predict_from_mesh(source, grid)
 
@@ -193,7 +191,7 @@ def _memory_cap(limit_mb: int | None):
 def _worker_main(connection, parent_pid: int, cpus: tuple | None, method: str, model: str | None,
                  threads: int) -> None:
     """A local worker: warm up, say ready, then run shapes one at a time until told to stop."""
-    # Before torch, Open3D and OpenMP load: their thread pools size themselves to these.
+    # Before Open3D, OpenMP and the fit kernel load: their thread pools size themselves to these.
     if cpus:
         os.sched_setaffinity(0, cpus)
     os.environ["OMP_NUM_THREADS"] = str(threads)

@@ -19,7 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
+
+from .._extras import require
+
+# Before .model, which needs torch too, so that the message names what was asked for.
+torch = require("torch", "ONNX export (voro3d export-onnx)", "torch,onnx")
 
 from ..infer import NEAR, OUTPUT_NAMES, check_sdf
 from .model import BandNet, load_checkpoint
@@ -95,8 +99,9 @@ def export_model(model: BandNet, out_path, *, near: float, metadata: dict | None
     RuntimeError
         onnxruntime and torch differ by more than ``TOLERANCE`` (the file is not written).
     """
-    import onnx
     import onnxruntime as ort
+
+    onnx = require("onnx", "ONNX export (voro3d export-onnx)", "torch,onnx")
 
     from ..io import atomic_path
 

@@ -11,10 +11,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import torch
-from torch import nn
 
+from .._extras import require
 from ..infer import BAND_INPUTS, NetworkInput, band_input
+
+torch = require("torch", "the network (voro3d.learn.model)")
+nn = torch.nn
 
 __all__ = ["BandNet", "build_model", "load_checkpoint", "save_checkpoint"]
 

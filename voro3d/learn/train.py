@@ -37,7 +37,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
+
+from .._extras import require
+
+# Before the modules below, which need torch too, so that the message names what was asked for.
+torch = require("torch", "training (voro3d train)")
 
 from ..infer import BAND, NetworkInput, assemble, fixed_generators, sdf_at
 from ..io import atomic_path
