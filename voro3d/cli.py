@@ -207,7 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="grid resolution, or 'auto' (default: from the point spacing, 32-64; 32 for meshes)")
     rebuild.add_argument("--method", choices=("fit", "learned"), default="fit")
     # Fit options default to None: the fit's defaults apply, and --method learned refuses them.
-    rebuild.add_argument("--steps", type=int, help="Adam steps of --method fit, default 400")
+    rebuild.add_argument("--steps", type=int, help="Adam steps of --method fit, default 400 for a mesh, 200 for a point cloud")
     rebuild.add_argument("--seed", type=int, help="seed of --method fit, default 0")
     rebuild.add_argument("--device", help="cpu or cuda, for --method fit (default cpu)")
     smoothing = rebuild.add_mutually_exclusive_group()

@@ -47,8 +47,9 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     method : {"fit", "learned"}
         Direct optimisation (seconds) or the shipped ONNX network (fast, needs no torch).
     steps, seed, device : int, int, str, optional
-        The fit's Adam steps, seed and torch device (defaults those of :func:`voro3d.fit`: 400,
-        0, ``"cpu"``). ``method="learned"`` uses none of them and refuses them.
+        The fit's Adam steps, seed and torch device (defaults 400 steps for a mesh, 200 for a
+        cloud, whose mesh is fitted to its target afterwards (``pointcloud.tuning.CLOUD_STEPS``),
+        seed 0, ``"cpu"``). ``method="learned"`` uses none of them and refuses them.
     denoise : bool or None
         Point clouds: the smoothing pass that moves noisy points onto the smooth surface. None
         (default) turns it on when the estimated fine-scale noise exceeds 0.13 point spacings,

@@ -26,7 +26,7 @@ from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, f
                          outlier_mask)
 from .poisson import poisson_depth, poisson_surface
 from .surface import imls, sheet_surface, target_surface, winding_level
-from .tuning import (WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
+from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, HEAVY_NOISE, FILTER_WIDTH_PER_NOISE,
                      AUTO_SPACINGS_PER_VOXEL, AUTO_GRID_RANGE, MIN_SPACINGS_PER_VOXEL, DENSE_SPACINGS,
                      HOLE_VOXELS, STRAY_CELL_SHARE, CLOSED_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE,
@@ -144,8 +144,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     method : {"fit", "learned"}
         VoroLoss fit, or the ONNX network on the target's signed distance grid.
     steps, seed, device : int, int, str, optional
-        As in :func:`voro3d.fit` (defaults 400, 0, ``"cpu"``); refused with ``method="learned"``,
-        which uses none of them.
+        As in :func:`voro3d.fit` (defaults ``CLOUD_STEPS`` = 200, 0, ``"cpu"``: a cloud's mesh is
+        fitted to its target afterwards); refused with ``method="learned"``, which uses none of them.
     progress : bool
         As in :func:`voro3d.fit`, and one line on stderr per phase (clean, normals, target, fit)
         with what it chose and its time.
@@ -174,6 +174,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
+    if method == "fit":
+        fit_options.setdefault("steps", CLOUD_STEPS)
 
     seconds = {}
     start = time.perf_counter()

@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE"]
+__all__ = ["CLOUD_STEPS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE"]
 
 # Kernel width of a point: this many local spacings, or this many noise standard deviations.
 # Sparse clean clouds (no noise, under MAX_TRUSTED_OUTLIERS of strays) get the narrower width:
@@ -92,3 +92,9 @@ SHEET_OFFSET = 1.25
 # the side it saw, a torus whose estimate_normals() signs were trusted (before the sign check) 7.5.
 MAX_HULL_VOLUME = 10.0
 MAX_MEDIAN_DISTANCE = 1.0
+# Adam steps of a cloud's fit (a mesh's stays 400): its mesh is fitted to the target afterwards,
+# which settles what the last steps would. 4 dev meshes x clean 20k / 0.5% noise / a third missing
+# at grid 64, 200 against 400 steps: CD +0.04% on average, +0.78% at worst (bunny clean), NC at
+# worst -0.0007, F1 within 0.001; the fit 0.67x and the whole call 0.84x the time. Bunny and fandisk
+# at 100k clean points and 3-view range scans: CD -0.9% to +0.8%, NC at worst -0.0018.
+CLOUD_STEPS = 200
