@@ -25,8 +25,9 @@ def merge_duplicates(points: np.ndarray, *attributes):
     ----------
     points : (n, 3) float64
     *attributes : (n, c) float64 or None
-        Normals, colours: averaged over each point's copies (normals then normalised where they
-        do not cancel; those that do come back zero, for :func:`~voro3d.pointcloud.normals.repair_normals`).
+        Normals, colours: averaged over each point's copies. Normals are not renormalised here:
+        :func:`~voro3d.pointcloud.normals.repair_normals` does that, and copies that cancel come
+        back zero for it to repair.
 
     Returns
     -------
@@ -42,13 +43,9 @@ def merge_duplicates(points: np.ndarray, *attributes):
     rank[order] = np.arange(len(order))
     index = rank[index.reshape(-1)]
     count = np.bincount(index)
-    merged = []
-    for values in attributes:
-        if values is None:
-            merged.append(None)
-            continue
-        mean = np.stack([np.bincount(index, weights=column) for column in values.T], axis=1) / count[:, None]
-        merged.append(mean)
+    merged = [None if values is None else
+              np.stack([np.bincount(index, weights=column) for column in values.T], axis=1) / count[:, None]
+              for values in attributes]
     return (unique[order], *merged)
 
 
