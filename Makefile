@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow wheels bench clean
+.PHONY: demo test test-slow wheels clean
 
 $(STAMP): pyproject.toml
 	bash scripts/install.sh
