@@ -77,7 +77,7 @@ def _fitted(path: Path, grid: int, refit: bool):
     """The VoroMesh of ``path`` at ``grid`` and the fit's seconds, from the cache or a new fit."""
     import torch
 
-    from voro3d.extract import VoroMesh
+    from voro3d.voromesh import VoroMesh
     from voro3d.fitting import fit
     from voro3d.io import load_mesh, mesh_arrays
     from voro3d.topology import open_edge_count
@@ -128,7 +128,7 @@ def _surfaces(source, shape, grid, open_input):
     surfaces = {"uncleaned": voronoi_surface(shape.generators, shape.occupancy)}
     before_rss = _peak_rss_mib() if _reset_peak_rss() else float("nan")
     start, cpu = time.perf_counter(), time.process_time()
-    vertices, triangles, info = clean_surface(*surfaces["uncleaned"])
+    vertices, triangles, info = clean_surface(*surfaces["uncleaned"], voxel=shape.voxel or _grid_voxel(source, grid))
     timing = dict(clean_seconds=time.perf_counter() - start, clean_cpu_seconds=time.process_time() - cpu,
                   clean_peak_rss_mib=_peak_rss_mib(), clean_rss_rise_mib=_peak_rss_mib() - before_rss,
                   clean_load_average=Path("/proc/loadavg").read_text().split()[:3])
@@ -162,6 +162,7 @@ def _scores(surfaces, source, info):
 
 
 def _one(path, grid, refit, queue):
+    from voro3d.cleaning import voxel_size
     from voro3d.io import load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
     from voro3d.snapping import snap
 
@@ -179,7 +180,7 @@ def _one(path, grid, refit, queue):
         if "fit_cpu_seconds" in fit:
             row["clean_cpu_ratio"] = timing["clean_cpu_seconds"] / fit["fit_cpu_seconds"]
         row.update(_scores(surfaces, source, info))
-        row["voxel_estimate_ratio"] = info.voxel / _grid_voxel(source, grid)
+        row["voxel_estimate_ratio"] = voxel_size(*surfaces["uncleaned"]) / info.voxel
         if path.name in PICTURED:
             for name in ("uncleaned", "cleaned", "output"):
                 save_mesh(to_triangle_mesh(*surfaces[name]), CACHE / f"{path.stem}_{grid}_{name}.ply")
@@ -195,6 +196,7 @@ def _one_cloud(path, condition, queue):
     from bench_pointcloud import make_cloud
 
     from voro3d.baselines import marching_cubes
+    from voro3d.cleaning import voxel_size
     from voro3d.io import fit_frame, load_mesh, mesh_arrays
     from voro3d.pointcloud import cloud_mesh, reconstruct_points
     from voro3d.queries import sdf_grid
@@ -205,19 +207,19 @@ def _one_cloud(path, condition, queue):
         source = load_mesh(path)
         start = time.perf_counter()
         cloud = make_cloud(source, condition)
-        shape, cloud_info = reconstruct_points(cloud)
+        shape, target, cloud_info = reconstruct_points(cloud)
         reconstruct_seconds = time.perf_counter() - start
         surfaces, info, timing = _surfaces(source, shape, cloud_info.grid, False)
         start = time.perf_counter()
-        surfaces["output"] = mesh_arrays(cloud_mesh(shape, cloud_info))
+        surfaces["output"] = mesh_arrays(cloud_mesh(shape, target))
         output_seconds = time.perf_counter() - start
         frame = fit_frame(source)
-        vertices, triangles = marching_cubes(sdf_grid(frame.apply_mesh(cloud_info.surface), cloud_info.grid,
+        vertices, triangles = marching_cubes(sdf_grid(frame.apply_mesh((target.vertices, target.triangles)), cloud_info.grid,
                                                       allow_open=True))
         surfaces["mc_target"] = (frame.invert(vertices), triangles)
         surfaces["poisson"] = _best_poisson(cloud, source)
         row = dict(shape=path.name, condition=condition, grid=cloud_info.grid, status="ok", target=cloud_info.target,
-                   snapped=cloud_info.snap, reconstruct_seconds=reconstruct_seconds, output_seconds=output_seconds,
+                   snapped=target.snap, reconstruct_seconds=reconstruct_seconds, output_seconds=output_seconds,
                    **timing)
         row.update(_scores(surfaces, source, info))
         # The output against the uncleaned surface, in the grid's voxels: the clean's bound, plus the
@@ -225,9 +227,9 @@ def _one_cloud(path, condition, queue):
         to_input = _distances_voxels(surfaces["output"], surfaces["uncleaned"], cloud_info.voxel)
         from_input = _distances_voxels(surfaces["uncleaned"], surfaces["output"], cloud_info.voxel)
         row.update(output_distance_max=float(max(to_input.max(), from_input.max())),
-                   output_distance_bound=(info.max_distance + SNAP_MAX_MOVE * info.voxel * cloud_info.snap)
+                   output_distance_bound=(info.max_distance + SNAP_MAX_MOVE * info.voxel * target.snap)
                    / cloud_info.voxel)
-        row["voxel_estimate_ratio"] = info.voxel / _grid_voxel(source, cloud_info.grid)
+        row["voxel_estimate_ratio"] = voxel_size(*surfaces["uncleaned"]) / info.voxel
         queue.put(row)
     except Exception as error:  # one bad cloud is recorded, not fatal
         queue.put(dict(shape=Path(path).name, condition=condition, status="failed",
@@ -312,8 +314,9 @@ def write_tables(rows, grids, out: Path):
              "triangles and of the area. Slivers: smallest "
              "angle under 5 degrees. CD x1e5, F1 at 0.003, NC against the input (100k samples each). "
              "Watertight: closed, manifold, oriented, positive volume, no crossing triangles (exact). Distances "
-             "between the cleaned and uncleaned surfaces: 100k samples each way, in the voxels `clean` estimated "
-             "(`voxel_size`; their ratio to the grid's voxel beside them), against the bound it guarantees. "
+             "between the cleaned and uncleaned surfaces: 100k samples each way, in the grid's voxels (what "
+             "`VoroMesh.to_open3d` gives `clean`; `voxel_size`'s estimate from the triangles, used where the grid "
+             "is unknown, beside them as a ratio), against the bound it guarantees. "
              "*output*: what the mesh paths return (`reconstruct`, `voro3d fit`, `run_batch`: "
              "`VoroMesh.to_open3d(surface=input)`), the cleaned surface fitted to the input "
              "(`voro3d.snapping.snap_to_surface`, not part of `clean`).", "",

@@ -70,12 +70,12 @@ def _extract(path, repeats, queue):
     with np.load(path) as data:
         generators, occupancy = data["generators"], data["occupancy"]
     # The extraction alone: clean=False (benchmarks/bench_clean.py times the clean).
-    extract_mesh(generators[:64], np.arange(64) % 2 == 0, clean=False)  # load the compiled module and Open3D
+    extract_mesh(generators[:64], np.arange(64) % 2 == 0)  # load the compiled module and Open3D
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     seconds = []
     for _ in range(repeats):
         start = time.perf_counter()
-        out = extract_mesh(generators, occupancy, clean=False)
+        out = extract_mesh(generators, occupancy)
         seconds.append(time.perf_counter() - start)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     queue.put(dict(generators=int(len(generators)), triangles=int(len(out.triangles)),

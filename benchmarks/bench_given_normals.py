@@ -51,8 +51,8 @@ def main():
         points, variants = clouds(mesh, args.points)
         for label, normals in variants.items():
             start = time.perf_counter()
-            shape, info = reconstruct_points(points, normals)
-            scores = voro3d.evaluate(cloud_mesh(shape, info), mesh)
+            shape, target, info = reconstruct_points(points, normals)
+            scores = voro3d.evaluate(cloud_mesh(shape, target), mesh)
             rows.append(dict(shape=name, normals=label, chamfer_x1e5=scores["chamfer_x1e5"], nc=scores["nc"],
                              f1=scores["f1"], source=info.normals, target=info.target,
                              seconds=time.perf_counter() - start))

@@ -246,8 +246,8 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
     row = dict(shape=name, condition=condition, points=len(points))
     start = time.perf_counter()
     try:
-        shape, info = reconstruct_points(points, grid=grid, progress=False)
-        mesh = cloud_mesh(shape, info)
+        shape, target, info = reconstruct_points(points, grid=grid, progress=False)
+        mesh = cloud_mesh(shape, target)
         _check_fit(mesh, points, info.voxel)  # what reconstruct refuses is an error here too
         if colours is not None:
             mesh.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(mesh.vertices), points, colours))
@@ -300,8 +300,8 @@ def run_scans(folder: Path, grid, picture_dir):
             from voro3d.reconstruction import _oriented
 
             checked_points, checked_normals = _oriented(points, normals)
-            shape, info = reconstruct_points(checked_points, checked_normals, grid=grid)
-            mesh = cloud_mesh(shape, info)
+            shape, target, info = reconstruct_points(checked_points, checked_normals, grid=grid)
+            mesh = cloud_mesh(shape, target)
             report = check_watertight(mesh)
             row["voromesh"] = dict(_scan_scores(mesh, points, normals, usable, diagonal),
                                    seconds=time.perf_counter() - start, grid=info.grid, pieces=_pieces(mesh),

@@ -26,7 +26,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 
 
 def _meshes() -> dict:
-    from voro3d.extract import VoroMesh
+    from voro3d.voromesh import VoroMesh
     from voro3d.infer import predict_from_mesh
     from voro3d.shapes import example_mesh
 

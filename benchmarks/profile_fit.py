@@ -46,7 +46,6 @@ import numpy as np
 import torch
 
 from voro3d import fitting as fit_module
-from voro3d.extract import extract_mesh
 from voro3d.generators import initial_generators
 from voro3d.io import fit_frame, load_mesh, mesh_arrays
 from voro3d.loss import PAIR_BLOCK, bisector_distance, bisector_pairs, voroloss
@@ -75,7 +74,7 @@ def phase_row(name, mesh, grid, steps):
     voromesh, info = fit_module.fit(mesh, grid, steps=steps)
     cpu = time.process_time() - cpu
     start = time.perf_counter()
-    surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+    surface = voromesh.to_open3d()
     extract_seconds = time.perf_counter() - start
     metrics = evaluate(surface, mesh)
     return {
@@ -152,7 +151,7 @@ def kernel_rows(name, mesh, grid, steps, repeats):
                 cpu = time.process_time()
                 voromesh, info = fit_module.fit(mesh, grid, steps=steps)
                 cpu = time.process_time() - cpu
-                surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+                surface = voromesh.to_open3d()
                 metrics = evaluate(surface, mesh)
                 rows.append({"mesh": name, "grid": grid, "repeat": repeat, "step": "kernel" if kernel else "torch",
                              "fit_total_s": info.total_seconds, "optimisation_s": info.optimisation_seconds,
@@ -174,7 +173,7 @@ def budget_rows(name, mesh, grid, steps, budgets):
         voromesh, info = fit_module.fit(mesh, grid, steps=steps, n_samples=int(samples_per_face * grid**2),
                                         batch_fraction=batch_fraction)
         cpu = time.process_time() - cpu
-        surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+        surface = voromesh.to_open3d()
         metrics = evaluate(surface, mesh)
         rows.append({"mesh": name, "grid": grid, "samples_per_face": samples_per_face, "batch_fraction": batch_fraction,
                      "fit_total_s": info.total_seconds, "fit_cpu_s": cpu, "searches": info.candidate_searches,
@@ -195,7 +194,7 @@ def schedule_rows(name, mesh, grid, steps, schedules):
             cpu = time.process_time()
             voromesh, info = fit_module.fit(mesh, grid, steps=steps, k=k, allow_open=True)  # thingi32_96481 is open
             cpu = time.process_time() - cpu
-            surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+            surface = voromesh.to_open3d()
             metrics = evaluate(surface, mesh)
             rows.append({"mesh": name, "grid": grid, "k": k, "refresh_voxels": refresh,
                          "fit_total_s": info.total_seconds, "fit_cpu_s": cpu, "searches": info.candidate_searches,
@@ -237,7 +236,7 @@ def refresh_rows(name, mesh, grid, steps, thresholds):
         for threshold in thresholds:
             fit_module.REFRESH_VOXELS = threshold
             voromesh, info = fit_module.fit(mesh, grid, steps=steps)
-            surface = extract_mesh(voromesh.generators, voromesh.occupancy)
+            surface = voromesh.to_open3d()
             metrics = evaluate(surface, mesh)
             exact = float(voroloss(samples, torch.tensor(frame.apply(voromesh.generators))))
             rows.append({"mesh": name, "grid": grid, "refresh_voxels": threshold, "searches": info.candidate_searches,

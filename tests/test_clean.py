@@ -259,7 +259,7 @@ def test_every_path_that_returns_a_mesh_cleans_by_default(tmp_path):
     cleaned, _, _ = clean_surface(*raw)
     assert len(shape.to_open3d().vertices) == len(cleaned) < len(raw[0])
     np.testing.assert_array_equal(np.asarray(shape.to_open3d(clean=False).vertices), raw[0])
-    assert len(extract_mesh(points, shape.occupancy, clean=False).triangles) == len(raw[1])
+    assert len(extract_mesh(points, shape.occupancy).triangles) == len(raw[1])
     sphere = example_mesh("sphere")
     assert len(reconstruct(sphere, 8, steps=5).triangles) < len(reconstruct(sphere, 8, steps=5, clean=False).triangles)
     assert VoroMeshStage(8, clean=False).options["clean"] is False

@@ -7,8 +7,8 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from voro3d import VoroMesh, extract_mesh
 from voro3d.cleaning import MAX_VOLUME_CHANGE, clean_surface
-from voro3d.delaunay import bounding_generators
-from voro3d.extract import DEFAULT_TOLERANCE, _prepare_generators, voronoi_polygons, voronoi_surface
+from voro3d.delaunay import bounding_generators, triangulate
+from voro3d.extract import voronoi_polygons, voronoi_surface
 from voro3d.watertight import check_watertight, signed_volume
 
 
@@ -16,8 +16,9 @@ def inside_cell_volume(generators, occupancy):
     """Summed volume of the inside Voronoi cells, each the intersection of its bisector
     half-spaces (independent of the Delaunay dual). Qhull's Voronoi diagram is off by up to
     2% next to generators 1e-6 apart, the half-space route agrees with ours to 1e-10."""
-    points, inside, _ = _prepare_generators(np.asarray(generators, float), np.asarray(occupancy, bool),
-                                         DEFAULT_TOLERANCE)
+    triangulation = triangulate(np.asarray(generators, float))
+    points = triangulation.points[: triangulation.n_sites]
+    inside = triangulation.site_occupancy(np.asarray(occupancy, bool))[: triangulation.n_sites]
     everything = np.vstack([points, bounding_generators(points)])
     total = 0.0
     for index in np.flatnonzero(inside):
@@ -31,7 +32,7 @@ def inside_cell_volume(generators, occupancy):
 
 def assert_valid_surface(generators, occupancy):
     """The Voronoi faces, then the cleaned surface (every case of the suite runs through clean)."""
-    mesh = extract_mesh(generators, occupancy, clean=False)
+    mesh = extract_mesh(generators, occupancy)
     report = check_watertight(mesh)
     assert report.closed and report.edge_manifold and report.vertex_manifold, report
     assert report.consistently_oriented and report.orientable, report
@@ -124,7 +125,7 @@ def test_conflicting_duplicates_are_inside():
     outside_copy = points[np.flatnonzero(inside)[:1]]
     with_copy = np.vstack([points, outside_copy])
     merged, _ = assert_valid_surface(with_copy, np.r_[inside, False])
-    reference = extract_mesh(points, inside, clean=False)
+    reference = extract_mesh(points, inside)
     assert np.asarray(merged.vertices).shape == np.asarray(reference.vertices).shape
 
 
@@ -187,32 +188,6 @@ def test_output_is_deterministic():
 def test_bad_input_raises_value_error(generators, occupancy, match):
     with pytest.raises(ValueError, match=match):
         extract_mesh(generators, occupancy)
-
-
-def test_voromesh_roundtrip(tmp_path):
-    rng = np.random.default_rng(0)
-    shape = VoroMesh(rng.uniform(-1, 1, (200, 3)), rng.random(200) < 0.3)
-    path = tmp_path / "shape.npz"
-    shape.save(path)
-    loaded = VoroMesh.load(path)
-    np.testing.assert_array_equal(loaded.generators, shape.generators)
-    np.testing.assert_array_equal(loaded.occupancy, shape.occupancy)
-    assert loaded.generators.dtype == np.float64 and loaded.occupancy.dtype == bool
-    assert len(loaded.to_open3d().triangles) > 0
-    assert [p.name for p in tmp_path.iterdir()] == ["shape.npz"]
-
-
-def test_voromesh_load_errors(tmp_path):
-    with pytest.raises(FileNotFoundError, match="missing.npz"):
-        VoroMesh.load(tmp_path / "missing.npz")
-    corrupt = tmp_path / "corrupt.npz"
-    corrupt.write_bytes(b"not a zip file")
-    with pytest.raises(ValueError, match="not a readable"):
-        VoroMesh.load(corrupt)
-    other = tmp_path / "other.npz"
-    np.savez(other, points=np.zeros((3, 3)))
-    with pytest.raises(ValueError, match="lacks arrays"):
-        VoroMesh.load(other)
 
 
 def test_voronoi_polygons_are_the_faces_the_surface_triangulates():

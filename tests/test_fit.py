@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from voro3d import fitting as fit_module
-from voro3d.extract import VoroMesh, extract_mesh
+from voro3d.extract import extract_mesh
+from voro3d.voromesh import VoroMesh
 from voro3d.fitting import FitInfo, fit
 from voro3d.io import load_mesh, mesh_arrays
 from voro3d.queries import InsideOutside

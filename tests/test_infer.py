@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from voro3d.baselines import marching_cubes
-from voro3d.extract import VoroMesh
+from voro3d.voromesh import VoroMesh
 from voro3d.infer import BAND_INPUTS, DEFAULT_MODEL, NEAR, Predictor, band_input, check_sdf, predict, predict_from_mesh
 from voro3d.io import fit_frame, mesh_arrays
 from voro3d.metrics import evaluate

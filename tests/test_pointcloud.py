@@ -139,7 +139,7 @@ def test_transfer_colors_is_exact_at_the_points(sphere_cloud):
 def test_sparse_cloud_gives_one_closed_smooth_piece():
     mesh = example_mesh("torus")
     points, _ = sample_surface(mesh, 1500, seed=1)
-    shape, info = reconstruct_points(points, grid=32, steps=150)
+    shape, target, info = reconstruct_points(points, grid=32, steps=150)
     out = shape.to_open3d()
     assert check_watertight(out).watertight and _pieces(out) == 1
     scores = evaluate(out, mesh, n_samples=20000)
@@ -152,7 +152,7 @@ def test_outliers_leave_no_debris():
     points, _ = sample_surface(mesh, 8000, seed=2)
     rng = np.random.default_rng(8)
     cloud = np.vstack([points, rng.uniform(points.min(0), points.max(0), (160, 3))])
-    shape, info = reconstruct_points(cloud, **FAST)
+    shape, target, info = reconstruct_points(cloud, **FAST)
     out = shape.to_open3d()
     assert info.n_outliers > 60  # of 160; the rest lie inside the tube or on the surface
     assert check_watertight(out).watertight and _pieces(out) == 1
@@ -196,7 +196,7 @@ def test_colours_are_carried_over(sphere_cloud):
 
 def test_grid_auto_and_a_grid_finer_than_the_points_warn_once(sphere_cloud):
     points, _ = sphere_cloud
-    shape, info = reconstruct_points(points[:1000], grid="auto", steps=20)
+    shape, target, info = reconstruct_points(points[:1000], grid="auto", steps=20)
     assert 32 <= info.grid <= 64
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -256,7 +256,7 @@ def _noisy_cloud(name: str, n: int):
 
 def test_a_noisy_sparse_cloud_gives_one_smooth_piece():
     mesh, noisy = _noisy_cloud("torus", 3000)
-    shape, info = reconstruct_points(noisy, grid=32, steps=150)
+    shape, target, info = reconstruct_points(noisy, grid=32, steps=150)
     out = shape.to_open3d()
     assert info.smoothed and check_watertight(out).watertight and _pieces(out) == 1
     scores = evaluate(out, mesh, n_samples=20000)
@@ -269,7 +269,7 @@ def test_noisy_normals_are_smoothed_before_the_points_move():
     from voro3d.metrics import triangle_quality
 
     mesh, noisy = _noisy_cloud("sphere", 4000)
-    shape, info = reconstruct_points(noisy, grid=24, steps=150)
+    shape, target, info = reconstruct_points(noisy, grid=24, steps=150)
     out = shape.to_open3d()
     assert info.smoothed
     assert evaluate(out, mesh, n_samples=20000)["nc"] > 0.98
@@ -282,23 +282,19 @@ def test_a_cloud_mesh_is_fitted_to_the_target_surface():
     from voro3d.metrics import triangle_quality
     from voro3d.pointcloud import cloud_mesh
 
-    from voro3d.cleaning import voxel_size
-    from voro3d.io import mesh_arrays
-
     mesh, noisy = _noisy_cloud("torus", 4000)
-    shape, info = reconstruct_points(noisy, grid=32, steps=150)
-    assert info.snap and info.noisy and info.voxel > 0
-    cleaned, snapped = shape.to_open3d(), cloud_mesh(shape, info)
+    shape, target, info = reconstruct_points(noisy, grid=32, steps=150)
+    assert target.snap and info.noisy and shape.voxel == pytest.approx(info.voxel, rel=1e-12)
+    cleaned, snapped = shape.to_open3d(), cloud_mesh(shape, target)
     assert np.array_equal(np.asarray(cleaned.triangles), np.asarray(snapped.triangles))
     moves = np.linalg.norm(np.asarray(snapped.vertices) - np.asarray(cleaned.vertices), axis=1)
-    voxel = voxel_size(*mesh_arrays(shape.to_open3d(clean=False)))  # the clean's estimate, the snap's unit
-    assert (moves > 0).mean() > 0.5 and moves.max() <= 0.25 * voxel * (1 + 1e-9)
+    assert (moves > 0).mean() > 0.5 and moves.max() <= 0.25 * info.voxel * (1 + 1e-9)  # the grid's voxel is the unit
     report = check_watertight(snapped)
     assert report.watertight and report.self_intersecting_pairs == 0
     before, after = evaluate(cleaned, mesh, n_samples=20000), evaluate(snapped, mesh, n_samples=20000)
     assert after["chamfer_x1e5"] < before["chamfer_x1e5"] and after["nc"] > before["nc"]
     assert triangle_quality(snapped, mesh)["off_normal_share"] < triangle_quality(cleaned, mesh)["off_normal_share"]
-    assert np.array_equal(np.asarray(cloud_mesh(shape, info, clean=False).vertices),
+    assert np.array_equal(np.asarray(cloud_mesh(shape, target, clean=False).vertices),
                           np.asarray(shape.to_open3d(clean=False).vertices))
 
 
@@ -312,17 +308,17 @@ def test_a_heavily_noisy_target_is_filtered(monkeypatch):
     scores = {}
     for heavy in (reconstruct_module.HEAVY_NOISE, np.inf):
         monkeypatch.setattr(reconstruct_module, "HEAVY_NOISE", heavy)
-        shape, info = reconstruct_points(noisy, grid=32, steps=150)
+        shape, target, info = reconstruct_points(noisy, grid=32, steps=150)
         assert info.filtered == np.isfinite(heavy)
-        scores[info.filtered] = evaluate(cloud_mesh(shape, info), mesh, n_samples=20000)
+        scores[info.filtered] = evaluate(cloud_mesh(shape, target), mesh, n_samples=20000)
     assert scores[True]["chamfer_x1e5"] < 0.95 * scores[False]["chamfer_x1e5"]
     assert scores[True]["nc"] > scores[False]["nc"]
     monkeypatch.undo()
-    assert not reconstruct_points(noisy, grid=32, steps=2, denoise=False)[1].filtered
+    assert not reconstruct_points(noisy, grid=32, steps=2, denoise=False)[2].filtered
     points, _ = sample_surface(mesh, 4000, seed=5)
     light = points + np.random.default_rng(11).normal(scale=0.005 * np.linalg.norm(np.ptp(points, axis=0)),
                                                       size=points.shape)
-    _, info = reconstruct_points(light, grid=32, steps=2)
+    _, _, info = reconstruct_points(light, grid=32, steps=2)
     assert info.noisy and not info.filtered
 
 
@@ -360,7 +356,7 @@ def test_walls_thinner_than_the_spacing_get_the_sheet_target():
     mesh = cup.to_mesh()
     vertices, triangles = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
     points, _ = sample_surface((vertices, triangles), 6000, seed=4)  # spacing ~0.04, walls 0.03 thick
-    shape, info = reconstruct_points(points, grid=32, steps=150)
+    shape, target, info = reconstruct_points(points, grid=32, steps=150)
     out = shape.to_open3d()
     assert info.target == "sheet"
     assert check_watertight(out).watertight and _pieces(out) == 1

@@ -24,7 +24,7 @@ _PUBLIC = {
     "fit": "fitting",
     "FitInfo": "fitting",
     "label_cells": "occupancy",
-    "VoroMesh": "extract",
+    "VoroMesh": "voromesh",
     "extract_mesh": "extract",
     "check_watertight": "watertight",
     "WatertightReport": "watertight",

@@ -16,7 +16,7 @@ __all__ = ["build_parser", "main"]
 
 
 def _extract(args) -> None:
-    from .extract import VoroMesh
+    from .voromesh import VoroMesh
     from .io import save_mesh
 
     shape = VoroMesh.load(args.generators)
@@ -34,7 +34,7 @@ def _fit(args) -> None:
     source = load_mesh(args.mesh)
     shape, _ = fit(source, grid=args.grid, steps=args.steps, seed=args.seed, device=args.device,
                    progress=not args.quiet)
-    mesh = shape.to_open3d(clean=not args.no_clean, surface=source)
+    mesh = shape.to_open3d(clean=not args.no_clean, surface=None if args.no_clean else source)
     save_mesh(mesh, args.output)
     _maybe_save_polygons(args, shape)
     if args.save_generators:
@@ -60,7 +60,7 @@ def _predict(args) -> None:
         reference = load_mesh(source)
         shape = predictor.predict_from_mesh(reference, 32 if args.grid is None else args.grid,
                                             fallback=not args.no_fallback)
-    mesh = shape.to_open3d(clean=not args.no_clean, surface=reference)
+    mesh = shape.to_open3d(clean=not args.no_clean, surface=None if args.no_clean else reference)
     save_mesh(mesh, args.output)
     _maybe_save_polygons(args, shape)
     panels = [mesh] if reference is None else [reference, mesh]

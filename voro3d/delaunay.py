@@ -1,15 +1,24 @@
 """3D Delaunay tetrahedralisation and circumcentres, the dual of the Voronoi diagram.
 
 CGAL (exact orientation and in-sphere predicates, in the compiled ``voro3d._cgal``)
-triangulates the points; everything after that is vectorised numpy.
+triangulates the points; everything after that is vectorised numpy. A VoroMesh's generators are
+triangulated once per call (:func:`triangulate`) and the :class:`Triangulation` is handed to
+every stage that needs it: cell labels, the point-cloud stray-cell pass, extraction.
 """
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
-__all__ = ["bounding_generators", "circumcenters", "delaunay_with_box"]
+__all__ = ["DEFAULT_TOLERANCE", "Triangulation", "bounding_generators", "circumcenters", "delaunay_with_box",
+           "triangulate"]
+
+DEFAULT_TOLERANCE = 1e-7
 
 _BOX_CORNERS = np.array(list(itertools.product((0.0, 1.0), repeat=3)))
 # Bound on a floating-point circumcentre's error, relative to the points' extent, above which it
@@ -42,6 +51,91 @@ def bounding_generators(points: np.ndarray, *, scale: float = 3.0) -> np.ndarray
     extent = float((hi - lo).max()) / 2
     half = 2.0 ** np.ceil(np.log2(scale * extent)) if extent > 0 else 1.0
     return centre + (2 * _BOX_CORNERS - 1) * half
+
+
+@dataclass(frozen=True)
+class Triangulation:
+    """The Delaunay tetrahedralisation of a VoroMesh's generators, snapped and merged.
+
+    Attributes
+    ----------
+    points : (m + 8, 3) float64
+        The ``m`` distinct generators (snapped, see :func:`triangulate`), then the eight corners of
+        :func:`bounding_generators`.
+    tets : (t, 4) int64
+        Positively oriented tetrahedra indexing ``points``.
+    cospherical : (p, 2) int64
+        Face-adjacent tetrahedra with one circumsphere (one Voronoi vertex).
+    site : (n,) int64
+        The distinct generator (row of ``points``) each given generator became.
+    tolerance : float
+        The tolerance it was built with.
+    """
+
+    points: np.ndarray
+    tets: np.ndarray
+    cospherical: np.ndarray
+    site: np.ndarray
+    tolerance: float
+
+    @property
+    def n_sites(self) -> int:
+        """Distinct generators (the box corners not counted)."""
+        return self.points.shape[0] - 8
+
+    def site_occupancy(self, occupancy: np.ndarray) -> np.ndarray:
+        """(m + 8,) bool: a distinct generator is inside if any generator merged into it is; corners outside."""
+        inside = np.zeros(self.points.shape[0], bool)
+        inside[self.site[occupancy]] = True
+        return inside
+
+
+def triangulate(generators: np.ndarray, *, tolerance: float = DEFAULT_TOLERANCE) -> Triangulation:
+    """Snap generators to a grid of spacing ~``tolerance``, merge those closer than it, triangulate.
+
+    Snapping turns a lattice jittered below the tolerance back into an exact lattice, whose
+    degeneracies the exact predicates resolve. What is left is either exactly degenerate or
+    has features far above float64 rounding, so rounded Voronoi vertices cannot make thin
+    neighbouring faces cross.
+
+    Parameters
+    ----------
+    generators : (n, 3) float64
+        Finite (checked by the caller).
+    tolerance : float
+        Relative to the generators' bounding-box diagonal, in [0, 0.01): the snapping grid's
+        spacing (a power of two) and the distance under which generators are one.
+
+    Returns
+    -------
+    Triangulation
+
+    Raises
+    ------
+    ValueError
+        Fewer than 4 distinct generators, or a tolerance out of range.
+    """
+    if not np.isfinite(tolerance) or not 0 <= tolerance < 1e-2:
+        raise ValueError(f"tolerance must be in [0, 0.01), got {tolerance}")
+    points = generators
+    scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    quantum = None
+    if scale > 0 and tolerance > 0:
+        # A power of two, so the snapped coordinates are exact multiples of it.
+        quantum = float(2.0 ** np.floor(np.log2(tolerance * scale)))
+        points = np.round(points / quantum) * quantum
+    # Pairs within the radius include exact duplicates (distance 0).
+    pairs = cKDTree(points).query_pairs(tolerance * scale, output_type="ndarray")
+    n = points.shape[0]
+    label = np.arange(n)
+    if pairs.size:
+        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        label = connected_components(graph, directed=False)[1]
+    _, first, site = np.unique(label, return_index=True, return_inverse=True)
+    if first.size < 4:
+        raise ValueError(f"generators must hold at least 4 distinct points, got {first.size}")
+    all_points, tets, cospherical = delaunay_with_box(points[first], quantum=quantum)
+    return Triangulation(all_points, tets, cospherical, site.reshape(-1).astype(np.int64), float(tolerance))
 
 
 def delaunay_with_box(points: np.ndarray, *, quantum: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

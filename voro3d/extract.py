@@ -2,25 +2,21 @@
 
 The faces come from the dual of the Delaunay tetrahedralisation: every Delaunay edge (i, j)
 whose ends differ in occupancy is a Voronoi polygon whose corners are the circumcentres of the
-tetrahedra around that edge. All of it is vectorised over tetrahedra and edges.
+tetrahedra around that edge. All of it is vectorised over tetrahedra and edges. Extraction only extracts: cleaning
+(:mod:`voro3d.cleaning`) and fitting to a surface (:mod:`voro3d.snapping`) are later stages,
+which :meth:`voro3d.VoroMesh.to_open3d` runs in turn.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from ._validate import as_mask, as_points
-from .delaunay import circumcenters, delaunay_with_box
+from .delaunay import DEFAULT_TOLERANCE, Triangulation, circumcenters, triangulate
 from .topology import split_nonmanifold
 
-__all__ = ["DEFAULT_TOLERANCE", "VoroMesh", "extract_mesh", "voronoi_polygons", "voronoi_surface"]
-
-DEFAULT_TOLERANCE = 1e-7
+__all__ = ["DEFAULT_TOLERANCE", "extract_mesh", "voronoi_polygons", "voronoi_surface"]
 
 # The six edges of a positively oriented tetrahedron (a, b, c, d), each written as an even
 # permutation (i, j, k, l): turning about i->j, the tetrahedron spans from face ijk to face ijl.
@@ -29,64 +25,9 @@ _EDGE_PERMUTATIONS = np.array(
 )
 
 
-@dataclass
-class VoroMesh:
-    """A shape as Voronoi generators with a binary occupancy.
-
-    Attributes
-    ----------
-    generators : (n, 3) float64
-        Generator positions.
-    occupancy : (n,) bool
-        True for generators whose Voronoi cell is inside the shape.
-    """
-
-    generators: np.ndarray
-    occupancy: np.ndarray
-
-    def __post_init__(self):
-        self.generators = as_points(self.generators, "generators")
-        self.occupancy = as_mask(self.occupancy, "occupancy", self.generators.shape[0])
-
-    def to_open3d(self, *, tolerance: float = DEFAULT_TOLERANCE, clean: bool = True, surface=None,
-                  smoothing: float = 0.0):
-        """The watertight surface, cleaned unless ``clean=False`` and fitted to ``surface`` when
-        given, see :func:`extract_mesh`."""
-        return extract_mesh(self.generators, self.occupancy, tolerance=tolerance, clean=clean, surface=surface,
-                            smoothing=smoothing)
-
-    def to_polygons(self, *, tolerance: float = DEFAULT_TOLERANCE):
-        """The Voronoi faces of the surface as polygons, see :func:`voronoi_polygons`."""
-        return voronoi_polygons(self.generators, self.occupancy, tolerance=tolerance)
-
-    def save(self, path) -> None:
-        """Write ``generators`` and ``occupancy`` to a ``.npz`` file (atomically)."""
-        from .io import atomic_path
-
-        with atomic_path(path, suffix=".npz") as tmp:
-            with open(tmp, "wb") as handle:
-                np.savez_compressed(handle, generators=self.generators, occupancy=self.occupancy)
-
-    @classmethod
-    def load(cls, path) -> "VoroMesh":
-        """Read a file written by :meth:`save`."""
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"no such VoroMesh file: {path}")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {name: data[name] for name in data.files}
-        except Exception as error:  # zip, pickle and OS errors of a corrupt or foreign file
-            raise ValueError(f"{path} is not a readable .npz file: {error}") from error
-        missing = {"generators", "occupancy"} - set(arrays)
-        if missing:
-            raise ValueError(f"{path} lacks arrays {sorted(missing)}; it holds {sorted(arrays)}")
-        return cls(arrays["generators"], arrays["occupancy"])
-
-
-def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE, clean: bool = True, surface=None,
-                 smoothing: float = 0.0):
-    """Watertight surface of a VoroMesh as an Open3D triangle mesh.
+def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE,
+                 triangulation: Triangulation | None = None):
+    """Watertight surface of a VoroMesh as an Open3D triangle mesh: its Voronoi faces, fan-triangulated.
 
     Parameters
     ----------
@@ -100,53 +41,35 @@ def extract_mesh(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE,
         generator (inside if any of them is). Voronoi vertices merge only where their
         tetrahedra are exactly co-spherical (decided by CGAL's exact predicate), never by
         distance.
-    clean : bool
-        Remove slivers, tiny faces and nearly coincident Voronoi vertices with
-        :func:`voro3d.cleaning.clean` (its defaults: within 0.2 voxel of the Voronoi faces,
-        volume within 0.5%; every guarantee below checked again). ``False`` gives the Voronoi
-        faces themselves, fan-triangulated.
-    surface : open3d.geometry.TriangleMesh or (vertices, triangles), optional
-        What the shape approximates, in the generators' units: the input mesh of a fit, a
-        cloud's target surface. With ``clean``, the cleaned vertices are then fitted to it
-        (:func:`voro3d.snapping.snap_to_surface`: at most a quarter voxel each, where no guarantee
-        breaks), which straightens the facets the VoroLoss fit left tilted (dev meshes at 32^3:
-        triangles over 30 degrees off the input's normal 9.1% -> 6.4%, CD -2.6%;
-        ``benchmarks/results/clean_32_64.md``). Ignored without ``clean``.
-    smoothing : float
-        The fit's pull of each vertex towards its neighbours (``snap_to_surface``), for a noisy
-        ``surface``.
+    triangulation : voro3d.delaunay.Triangulation, optional
+        The generators' triangulation (:func:`voro3d.delaunay.triangulate`) when the caller has
+        it already, built with ``tolerance``.
 
     Returns
     -------
     open3d.geometry.TriangleMesh
-        Closed, edge- and vertex-manifold, outward-oriented, with vertex normals. Where
-        inside cells meet only at an edge or corner, the shared vertices are duplicated.
+        Closed, edge- and vertex-manifold, outward-oriented, with vertex normals; not cleaned
+        (:func:`voro3d.clean` removes its slivers). Where inside cells meet only at an edge or
+        corner, the shared vertices are duplicated.
 
     Raises
     ------
     ValueError
         On bad input (shape, dtype, NaN/inf, too few distinct generators, no inside or no
-        outside generator; an empty or non-finite ``surface``, a negative ``smoothing``).
+        outside generator, a triangulation of other generators).
     RuntimeError
         If the result fails the cheap watertightness checks (a bug, reported loudly).
     """
-    vertices, triangles = voronoi_surface(generators, occupancy, tolerance=tolerance)
     from .io import to_triangle_mesh
     from .watertight import assert_closed_manifold
 
+    vertices, triangles = voronoi_surface(generators, occupancy, tolerance=tolerance, triangulation=triangulation)
     assert_closed_manifold(vertices, triangles)
-    if clean:
-        from .cleaning import clean_surface
-
-        vertices, triangles, info = clean_surface(vertices, triangles)
-        if surface is not None:
-            from .snapping import snap_to_surface
-
-            vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing)
     return to_triangle_mesh(vertices, triangles, normals=True)
 
 
-def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE):
+def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE,
+                    triangulation: Triangulation | None = None):
     """Arrays behind :func:`extract_mesh`: the Voronoi faces, fan-triangulated, not cleaned.
 
     Returns
@@ -155,7 +78,7 @@ def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERAN
     triangles : (t, 3) int64
         Outward-oriented; not yet checked.
     """
-    all_points, tets, cospherical, inside = _delaunay_dual(generators, occupancy, tolerance)
+    all_points, tets, cospherical, inside = _delaunay_dual(generators, occupancy, tolerance, triangulation)
     tet_ids, triangles = _dual_faces(tets, inside, all_points.shape[0])
     vertices, vertex_of, merged = _voronoi_vertices(all_points, tets, cospherical, tet_ids)
     triangles = vertex_of[triangles]
@@ -165,12 +88,13 @@ def voronoi_surface(generators, occupancy, *, tolerance: float = DEFAULT_TOLERAN
     return split_nonmanifold(vertices, triangles[keep]) if merged else (vertices, triangles[keep])
 
 
-def voronoi_polygons(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE):
+def voronoi_polygons(generators, occupancy, *, tolerance: float = DEFAULT_TOLERANCE,
+                     triangulation: Triangulation | None = None):
     """The surface of a VoroMesh as its Voronoi faces: one polygon per face, not triangulated.
 
     Parameters
     ----------
-    generators, occupancy, tolerance
+    generators, occupancy, tolerance, triangulation
         As for :func:`extract_mesh`.
 
     Returns
@@ -188,7 +112,7 @@ def voronoi_polygons(generators, occupancy, *, tolerance: float = DEFAULT_TOLERA
     ValueError
         As :func:`extract_mesh`.
     """
-    all_points, tets, cospherical, inside = _delaunay_dual(generators, occupancy, tolerance)
+    all_points, tets, cospherical, inside = _delaunay_dual(generators, occupancy, tolerance, triangulation)
     tet_of, starts, nxt = _rings(tets, inside, all_points.shape[0])
     vertices, vertex_of, _ = _voronoi_vertices(all_points, tets, cospherical, tet_of)
     lengths = np.diff(np.append(starts, tet_of.size))
@@ -209,53 +133,21 @@ def voronoi_polygons(generators, occupancy, *, tolerance: float = DEFAULT_TOLERA
     return vertices, [piece for piece, count in zip(pieces, kept) if count >= 3]
 
 
-def _delaunay_dual(generators, occupancy, tolerance):
-    """Checked, snapped generators with the bounding box's: (points, tets, cospherical, inside)."""
+def _delaunay_dual(generators, occupancy, tolerance, triangulation):
+    """Checked inputs and their triangulation: (points, tets, cospherical, inside of every point)."""
     points = as_points(generators, "generators")
-    inside = as_mask(occupancy, "occupancy", points.shape[0])
-    if not np.isfinite(tolerance) or not 0 <= tolerance < 1e-2:
-        raise ValueError(f"tolerance must be in [0, 0.01), got {tolerance}")
-    points, inside, quantum = _prepare_generators(points, inside, tolerance)
-    if points.shape[0] < 4:
-        raise ValueError(f"generators must hold at least 4 distinct points, got {points.shape[0]}")
-    if inside.all():
+    occupancy = as_mask(occupancy, "occupancy", points.shape[0])
+    if triangulation is None:
+        triangulation = triangulate(points, tolerance=tolerance)
+    elif triangulation.site.shape[0] != points.shape[0] or triangulation.tolerance != tolerance:
+        raise ValueError(f"triangulation is of {triangulation.site.shape[0]} generators at tolerance "
+                         f"{triangulation.tolerance}, not of these {points.shape[0]} at {tolerance}")
+    inside = triangulation.site_occupancy(occupancy)
+    if inside[: triangulation.n_sites].all():
         raise ValueError("occupancy has no outside generator; the surface would be empty")
     if not inside.any():
         raise ValueError("occupancy has no inside generator; the surface would be empty")
-
-    all_points, tets, cospherical = delaunay_with_box(points, quantum=quantum)
-    inside_all = np.concatenate([inside, np.zeros(all_points.shape[0] - points.shape[0], bool)])
-    return all_points, tets, cospherical, inside_all
-
-
-def _prepare_generators(points, inside, tolerance):
-    """Snap generators to a grid of spacing ~``tolerance`` and merge those closer than it.
-
-    Returns the generators, their occupancy and the grid spacing (a power of two, or None).
-
-    Snapping turns a lattice jittered below the tolerance back into an exact lattice, whose
-    degeneracies the exact predicates resolve. What is left is either exactly degenerate or
-    has features far above float64 rounding, so rounded Voronoi vertices cannot make thin
-    neighbouring faces cross.
-    """
-    scale = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-    if scale == 0:
-        return points[:1], inside[:1], None
-    quantum = None
-    if tolerance > 0:
-        # A power of two, so the snapped coordinates are exact multiples of it.
-        quantum = float(2.0 ** np.floor(np.log2(tolerance * scale)))
-        points = np.round(points / quantum) * quantum
-    # Pairs within the radius include exact duplicates (distance 0).
-    pairs = cKDTree(points).query_pairs(tolerance * scale, output_type="ndarray")
-    n = points.shape[0]
-    label = np.arange(n)
-    if pairs.size:
-        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-        label = connected_components(graph, directed=False)[1]
-    _, first, label = np.unique(label, return_index=True, return_inverse=True)
-    merged_inside = np.bincount(label.reshape(-1), weights=inside.astype(float)) > 0
-    return points[first], merged_inside, quantum
+    return triangulation.points, triangulation.tets, triangulation.cospherical, inside
 
 
 def _rings(tets, inside, n_points):

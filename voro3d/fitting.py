@@ -7,19 +7,20 @@ from __future__ import annotations
 
 import bisect
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ._cpufit import KernelLoop, cpu_threads, spatial_order
 from ._extras import require
 from ._validate import as_points, positive_int
-from .extract import VoroMesh
+from .delaunay import triangulate
 from .generators import initial_generators
 from .io import fit_frame, mesh_arrays
 from .occupancy import label_cells
 from .queries import InsideOutside
 from .sampling import sample_surface
+from .voromesh import VoroMesh, grid_voxel
 
 __all__ = ["FitInfo", "MAX_REFRESH_DISTANCE", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples"]
 
@@ -173,15 +174,17 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     shape = (frame.apply(vertices), triangles)
     inside = InsideOutside(shape, allow_open=allow_open)  # fails early on an open mesh
     samples, _ = sample_surface(shape, n_samples, seed=seed)
-    return fit_samples(samples, inside.occupancy, grid, frame=frame, steps=steps, lr=lr, milestones=milestones,
-                       gamma=gamma, batch_fraction=batch_fraction, k=k, seed=seed, device=device,
-                       progress=progress, _started=start)
+    sampled = time.perf_counter() - start
+    result, info = fit_samples(samples, inside.occupancy, grid, frame=frame, steps=steps, lr=lr, milestones=milestones,
+                               gamma=gamma, batch_fraction=batch_fraction, k=k, seed=seed, device=device,
+                               progress=progress)
+    return result, replace(info, sampling_seconds=sampled, total_seconds=info.total_seconds + sampled)
 
 
 def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr: float = 0.005,
                 milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
-                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu", progress: bool = False,
-                _started: float | None = None) -> tuple[VoroMesh, FitInfo]:
+                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu",
+                progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit`.
 
     Parameters
@@ -199,10 +202,11 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     Returns
     -------
     voromesh : VoroMesh
+        With its grid, frame and Delaunay triangulation (the one its cells were labelled with).
     info : FitInfo
+        ``sampling_seconds`` is 0: the samples came in.
     """
-    start = time.perf_counter() if _started is None else _started
-    sampled = time.perf_counter()
+    start = time.perf_counter()
     grid = positive_int(grid, "grid", minimum=2)
     steps = positive_int(steps, "steps")
     k = positive_int(k, "k", minimum=2)
@@ -218,7 +222,7 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
 
     generators = initial_generators(samples, grid)
     schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
-                    refresh_distance=min(REFRESH_VOXELS * 2.0 / (grid - 1), MAX_REFRESH_DISTANCE),
+                    refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE),
                     progress=progress)
     if device == "cpu" and _CPU_KERNEL:
         loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=cpu_threads())
@@ -242,16 +246,26 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     generators = loop.generators()
     optimised = time.perf_counter()
 
-    occupancy = label_cells(generators, inside)
-    result = VoroMesh(generators if frame is None else frame.invert(generators), occupancy)
+    # Triangulated once, in the result's units: the labels, any later pass and the extraction share it.
+    if frame is not None:
+        generators = frame.invert(generators)
+        inside = _in_frame(inside, frame)
+    triangulation = triangulate(generators)
+    occupancy = label_cells(generators, inside, triangulation=triangulation)
+    result = VoroMesh(generators, occupancy, grid=grid, frame=frame, triangulation=triangulation)
     done = time.perf_counter()
     info = FitInfo(
         n_samples=samples.shape[0], n_generators=generators.shape[0], final_loss=final_loss, losses=losses,
-        candidate_searches=loop.searches, sampling_seconds=sampled - start,
-        init_seconds=initialised - sampled, optimisation_seconds=optimised - initialised,
+        candidate_searches=loop.searches, sampling_seconds=0.0,
+        init_seconds=initialised - start, optimisation_seconds=optimised - initialised,
         occupancy_seconds=done - optimised, total_seconds=done - start,
     )
     return result, info
+
+
+def _in_frame(inside, frame):
+    """``inside`` (a fit-frame test) for points in the frame's original units."""
+    return lambda points: inside(frame.apply(points))
 
 
 def _device(device) -> str:

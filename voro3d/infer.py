@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import as_sdf_grid
-from .extract import VoroMesh
+from .voromesh import VoroMesh
 
 __all__ = ["BAND", "BAND_INPUTS", "CONTEXT", "DEFAULT_MODEL", "NEAR", "OUTPUT_NAMES", "NetworkInput", "Predictor",
            "assemble", "band_input", "check_sdf", "fixed_generators", "predict", "predict_from_mesh", "sdf_at"]
@@ -226,12 +226,12 @@ def assemble(sdf: np.ndarray, net_input: NetworkInput, offsets: np.ndarray, logi
     generators = net_input.positions + net_input.step * np.asarray(offsets, np.float64)
     inside = np.asarray(logits) > 0
     if not fallback:
-        return VoroMesh(generators, inside)
+        return VoroMesh(generators, inside, grid=sdf.shape[0])
     value = sdf_at(sdf, generators)
     far_away = np.abs(value) > far * net_input.step
     inside = np.where(far_away, value < 0, inside)
     fixed, fixed_inside = fixed_generators(sdf, near=near, band=band)
-    return VoroMesh(np.concatenate([generators, fixed]), np.concatenate([inside, fixed_inside]))
+    return VoroMesh(np.concatenate([generators, fixed]), np.concatenate([inside, fixed_inside]), grid=sdf.shape[0])
 
 
 class Predictor:
@@ -345,7 +345,7 @@ class Predictor:
         vertices, triangles = mesh_arrays(mesh)
         frame = fit_frame((vertices, triangles))
         voro = self.predict(sdf_grid((frame.apply(vertices), triangles), grid), fallback=fallback)
-        return VoroMesh(frame.invert(voro.generators), voro.occupancy)
+        return VoroMesh(frame.invert(voro.generators), voro.occupancy, grid=voro.grid, frame=frame)
 
 
 @functools.lru_cache(maxsize=4)

@@ -93,10 +93,12 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         if method == "fit":
             from .fitting import fit
 
-            return fit(data, grid, progress=progress, **fit_options)[0].to_open3d(clean=clean, surface=data)
-        from .infer import predict_from_mesh
+            shape = fit(data, grid, progress=progress, **fit_options)[0]
+        else:
+            from .infer import predict_from_mesh
 
-        return predict_from_mesh(data, grid).to_open3d(clean=clean, surface=data)
+            shape = predict_from_mesh(data, grid)
+        return shape.to_open3d(clean=clean, surface=data if clean else None)
     import open3d as o3d
 
     from .pointcloud import cloud_mesh, reconstruct_points, separate_objects, transfer_colors
@@ -110,9 +112,10 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     for number, group in enumerate(groups):
         if len(groups) > 1:
             report_phase(progress, "object", f"{number + 1} of {len(groups)} far apart: {len(group):,} points")
-        shape, info = reconstruct_points(points[group], None if normals is None else normals[group], grid=grid,
-                                         method=method, denoise=denoise, progress=progress, **fit_options)
-        piece = cloud_mesh(shape, info, clean=clean, progress=progress)
+        shape, target, info = reconstruct_points(points[group], None if normals is None else normals[group],
+                                                 grid=grid, method=method, denoise=denoise, progress=progress,
+                                                 **fit_options)
+        piece = cloud_mesh(shape, target, clean=clean, progress=progress)
         _check_fit(piece, points[group], info.voxel)
         if colors is not None:
             piece.vertex_colors = o3d.utility.Vector3dVector(

@@ -177,8 +177,8 @@ def snap(mesh, surface, *, voxel: float | None = None, max_move: float = MAX_MOV
     surface : open3d.geometry.TriangleMesh or (vertices, triangles)
         What ``mesh`` approximates (the input mesh of a fit, the target surface of a cloud).
     voxel : float, optional
-        The unit of ``max_move``; default estimated from the triangles
-        (:func:`voro3d.cleaning.voxel_size`).
+        The unit of ``max_move``: the grid's voxel (``VoroMesh.voxel``); default estimated from
+        the triangles (:func:`voro3d.cleaning.voxel_size`, 0.90-1.21 of it on the dev meshes).
     max_move, max_turn, smoothing
         See :func:`snap_to_surface`.
 
@@ -190,7 +190,7 @@ def snap(mesh, surface, *, voxel: float | None = None, max_move: float = MAX_MOV
     Examples
     --------
     >>> shape, _ = voro3d.fit(mesh, grid=32)  # doctest: +SKIP
-    >>> fitted = voro3d.snap(shape.to_open3d(), mesh)  # doctest: +SKIP
+    >>> fitted = voro3d.snap(shape.to_open3d(), mesh, voxel=shape.voxel)  # doctest: +SKIP
     >>> fitted = shape.to_open3d(surface=mesh)  # the same at extraction (what reconstruct does)  # doctest: +SKIP
     """
     from .cleaning import voxel_size
@@ -215,8 +215,8 @@ def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: flo
     surface : open3d.geometry.TriangleMesh or (vertices, triangles)
         The target surface, same units; need not be closed.
     voxel : float
-        The unit of ``max_move``, in mesh units: the fit grid's voxel, or the clean's estimate of it
-        (:func:`voro3d.cleaning.voxel_size`, as ``extract_mesh`` passes it).
+        The unit of ``max_move``, in mesh units: the fit grid's voxel (``VoroMesh.voxel``, as
+        ``VoroMesh.to_open3d`` passes it), or the clean's estimate of it (:func:`voro3d.cleaning.voxel_size`).
     max_move : float
         Largest move of a vertex, in voxels: every point of the result is within it of the input
         and every point of the input within it of the result.

@@ -52,7 +52,7 @@ def process_shape(task: ShapeTask) -> dict:
         with _memory_cap(task.memory_limit_mb):
             source = load_mesh(task.source)
             mesh = _reconstruct(source, task.method, grid=task.grid, steps=task.steps, seed=task.seed,
-                                model=task.model, threads=task.threads).to_open3d(clean=task.clean, surface=source)
+                                model=task.model, threads=task.threads).to_open3d(clean=task.clean, surface=source if task.clean else None)
             report = check_watertight(mesh, self_intersection=False).as_dict()
             result.update(n_vertices=report["n_vertices"], n_faces=report["n_triangles"], watertight=report)
             if not report["watertight"]:
@@ -105,7 +105,7 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
     import open3d as o3d
 
     from .. import queries
-    from ..extract import VoroMesh
+    from ..voromesh import VoroMesh
     from ..metrics import evaluate
     from ..watertight import check_watertight
 

@@ -7,11 +7,11 @@ fitted to the target, colours).
 """
 from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement
 from .preprocess import cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, separate_objects
-from .reconstruct import PointCloudInfo, auto_grid, cloud_mesh, max_supported_grid, reconstruct_points, transfer_colors
+from .reconstruct import PointCloudInfo, SnapTarget, auto_grid, cloud_mesh, max_supported_grid, reconstruct_points, transfer_colors
 from .poisson import PoissonSurface, poisson_surface
 from .surface import TargetSurface, imls, target_surface
 
 __all__ = ["estimate_normals", "orient_normals", "repair_normals", "sign_disagreement", "cloud_stats", "fill_ratio",
-           "local_dimension", "merge_duplicates", "outlier_mask", "separate_objects", "PointCloudInfo",
+           "local_dimension", "merge_duplicates", "outlier_mask", "separate_objects", "PointCloudInfo", "SnapTarget",
            "auto_grid", "cloud_mesh", "max_supported_grid", "reconstruct_points", "transfer_colors", "TargetSurface", "imls",
            "target_surface", "PoissonSurface", "poisson_surface"]

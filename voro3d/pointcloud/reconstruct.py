@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..queries import point_areas
+from ..snapping import NOISY_SMOOTHING
+from ..voromesh import grid_voxel
 from .normals import estimate_normals, orient_normals, sign_disagreement
 from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
                          outlier_mask)
@@ -33,7 +35,7 @@ from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, 
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN,
                      SHEET_OFFSET)
 
-__all__ = ["PointCloudInfo", "reconstruct_points", "cloud_mesh", "auto_grid", "max_supported_grid", "transfer_colors"]
+__all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh", "auto_grid", "max_supported_grid", "transfer_colors"]
 
 MIN_POINTS = 100
 # The VoroLoss fit of the target samples, or the learned model on the target's SDF grid.
@@ -69,11 +71,6 @@ class PointCloudInfo:
     seconds : dict
         ``clean`` (outliers, statistics), ``normals``, ``surface`` (field and proxy mesh),
         ``samples`` (sampling and projection), ``fit`` (VoroLoss fit and cell labels).
-    surface : tuple of ((v, 3) float64, (t, 3) int64)
-        The target surface as a mesh, in the input's units.
-    snap : bool
-        Whether :func:`cloud_mesh` fits the cleaned mesh to ``surface``: where the VoroMesh was
-        fitted to samples of it (not a dense clean cloud, fitted to its own points).
     """
 
     n_points: int
@@ -88,8 +85,28 @@ class PointCloudInfo:
     grid: int
     voxel: float
     seconds: dict
-    surface: tuple = field(repr=False, compare=False)
+
+
+@dataclass(frozen=True)
+class SnapTarget:
+    """The smooth surface a cloud's VoroMesh was fitted to, handed to the stages after extraction.
+
+    Attributes
+    ----------
+    vertices : (v, 3) float64
+        In the input's units.
+    triangles : (t, 3) int64
+    snap : bool
+        Whether the cleaned mesh is fitted to it (:func:`cloud_mesh`): where the VoroMesh was
+        fitted to samples of it (not a dense clean cloud, fitted to its own points).
+    smoothing : float
+        The snap's pull of each vertex towards its neighbours (``NOISY_SMOOTHING`` for a noisy cloud).
+    """
+
+    vertices: np.ndarray = field(repr=False)
+    triangles: np.ndarray = field(repr=False)
     snap: bool
+    smoothing: float
 
 
 def report_phase(progress: bool, phase: str, text: str, seconds: float | None = None) -> None:
@@ -157,7 +174,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     Returns
     -------
     voromesh : voro3d.VoroMesh
-        In the input's units.
+        In the input's units, with its grid, frame and triangulation.
+    target : SnapTarget
+        The target surface, for :func:`cloud_mesh`.
     info : PointCloudInfo
 
     Raises
@@ -223,7 +242,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     noisy = stats.fine_noise > NOISY * stats.median_spacing
     # Clean points are followed closely; noisy ones, or a cloud that held strays, are averaged.
     trusted = not noisy and outliers.mean() < MAX_TRUSTED_OUTLIERS
-    dense = trusted and stats.median_spacing < DENSE_SPACINGS * 2.0 / (grid - 1)
+    dense = trusted and stats.median_spacing < DENSE_SPACINGS * grid_voxel(grid)
     # Dense clouds are fitted on their own points; their field only fills holes and must not
     # reach past its band with the planes of single points, so they keep the wider kernel.
     per_spacing = TRUSTED_WIDTH_PER_SPACING if trusted and not dense else WIDTH_PER_SPACING
@@ -287,24 +306,24 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
                           noisy=bool(noisy), normals=normal_source, smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
-                          target=kind, grid=grid,
-                          voxel=2.0 / (grid - 1) / frame.scale, seconds=seconds,
-                          surface=(frame.invert(surface_vertices), target.triangles), snap=not target.dense)
-    return shape, info
+                          target=kind, grid=grid, voxel=grid_voxel(grid) / frame.scale, seconds=seconds)
+    surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
+                            smoothing=NOISY_SMOOTHING if noisy else 0.0)
+    return shape, surface, info
 
 
-def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True, progress: bool = False):
+def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool = False):
     """The watertight mesh of :func:`reconstruct_points`' VoroMesh.
 
     Parameters
     ----------
     shape : voro3d.VoroMesh
-    info : PointCloudInfo
+    target : SnapTarget
         From the same call.
     clean : bool
-        Clean the surface (:func:`voro3d.cleaning.clean`) and, where ``info.snap``, fit its
+        Clean the surface (:func:`voro3d.cleaning.clean`) and, where ``target.snap``, fit its
         vertices to the target surface (:func:`voro3d.snapping.snap_to_surface`: at most a
-        quarter voxel, no triangle flipped, thinned or crossing; smoothed where ``info.noisy``).
+        quarter voxel, no triangle flipped, thinned or crossing; with ``target.smoothing``).
     progress : bool
         One line on stderr when done, as in :func:`reconstruct_points`.
 
@@ -313,13 +332,12 @@ def cloud_mesh(shape, info: PointCloudInfo, *, clean: bool = True, progress: boo
     open3d.geometry.TriangleMesh
         Closed, manifold, outward-oriented, no crossing triangles, with vertex normals.
     """
-    from ..snapping import NOISY_SMOOTHING
-
     start = time.perf_counter()
-    mesh = shape.to_open3d(clean=clean, surface=info.surface if info.snap else None,
-                           smoothing=NOISY_SMOOTHING if info.noisy else 0.0)
+    snap = clean and target.snap
+    mesh = shape.to_open3d(clean=clean, surface=(target.vertices, target.triangles) if snap else None,
+                           smoothing=target.smoothing)
     report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight"
-                 f"{'' if not clean else ', cleaned and fitted to the target' if info.snap else ', cleaned'}",
+                 f"{'' if not clean else ', cleaned and fitted to the target' if snap else ', cleaned'}",
                  time.perf_counter() - start)
     return mesh
 
@@ -348,7 +366,7 @@ def _fit_samples(target, surface_vertices, points, grid: int, *, seed: int) -> n
     if points.shape[0] > budget:
         points = points[np.random.default_rng(seed).choice(points.shape[0], budget, replace=False)]
     distance, _ = cKDTree(points).query(proxy, workers=-1)
-    return np.vstack([points, proxy[distance > HOLE_VOXELS * 2.0 / (grid - 1)]])
+    return np.vstack([points, proxy[distance > HOLE_VOXELS * grid_voxel(grid)]])
 
 
 def _sheet_if_closer(target, points, spacing: float, resolution: int):
@@ -397,16 +415,12 @@ def _drop_stray_cells(shape):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from ..delaunay import delaunay_with_box
-    from ..extract import VoroMesh
-
     if shape.occupancy.sum() < 2:
         return shape
-    unique, index = np.unique(shape.generators, axis=0, return_inverse=True)
-    n = len(unique)
-    inside = np.zeros(n + 8, bool)  # the 8 bounding corners are outside
-    inside[index[shape.occupancy]] = True
-    _, tets, _ = delaunay_with_box(unique)
+    triangulation = shape.triangulated()
+    n = triangulation.n_sites
+    inside = triangulation.site_occupancy(shape.occupancy)  # the 8 bounding corners are outside
+    tets = triangulation.tets
     edges = tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
     same = edges[inside[edges[:, 0]] == inside[edges[:, 1]]]
     groups, group = connected_components(coo_matrix((np.ones(len(same)), (same[:, 0], same[:, 1])),
@@ -421,7 +435,7 @@ def _drop_stray_cells(shape):
     flip = (stray | bubble)[group[:n]]
     if not flip.any():
         return shape
-    return VoroMesh(shape.generators, shape.occupancy ^ flip[index])
+    return shape.relabelled((inside[:n] ^ flip)[triangulation.site])
 
 
 def _check_coverage(target, points, widths) -> None:
@@ -452,15 +466,15 @@ def _choose_grid(grid, spacing: float) -> int:
 
 def _predict(target, grid: int, frame):
     """The learned model on the target's signed distance at the ``grid^3`` nodes."""
-    from ..extract import VoroMesh
     from ..infer import predict
     from ..sampling import grid_nodes
+    from ..voromesh import VoroMesh
 
     nodes = grid_nodes(grid)
     distance = target.distance(nodes)
     sdf = np.where(target.inside(nodes), -distance, distance).reshape(grid, grid, grid).astype(np.float32)
     shape = predict(sdf)
-    return VoroMesh(frame.invert(shape.generators), shape.occupancy)
+    return VoroMesh(frame.invert(shape.generators), shape.occupancy, grid=grid, frame=frame)
 
 
 def transfer_colors(vertices: np.ndarray, points: np.ndarray, colors: np.ndarray, *, k: int = 8) -> np.ndarray:
