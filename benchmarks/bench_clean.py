@@ -112,7 +112,7 @@ def _distances_voxels(a, b, voxel, n_samples=100_000):
 
 def _grid_voxel(source, grid):
     """The fit grid's voxel in the input's units: 2 / (grid - 1) in the fit frame."""
-    from voro3d.io import fit_frame
+    from voro3d.frames import fit_frame
 
     return 2.0 / (grid - 1) / fit_frame(source).scale
 
@@ -122,7 +122,7 @@ def _surfaces(source, shape, grid, open_input):
     from voro3d.baselines import marching_cubes
     from voro3d.cleaning import clean_surface
     from voro3d.extract import voronoi_surface
-    from voro3d.io import fit_frame
+    from voro3d.frames import fit_frame
     from voro3d.queries import sdf_grid
 
     surfaces = {"uncleaned": voronoi_surface(shape.generators, shape.occupancy)}
@@ -197,7 +197,8 @@ def _one_cloud(path, condition, queue):
 
     from voro3d.baselines import marching_cubes
     from voro3d.cleaning import voxel_size
-    from voro3d.io import fit_frame, load_mesh, mesh_arrays
+    from voro3d.frames import fit_frame
+    from voro3d.io import load_mesh, mesh_arrays
     from voro3d.pointcloud import cloud_mesh, reconstruct_points
     from voro3d.queries import sdf_grid
     from voro3d.snapping import MAX_MOVE as SNAP_MAX_MOVE

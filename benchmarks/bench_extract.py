@@ -36,7 +36,9 @@ PAPER_CGAL_SECONDS = {32: 0.03, 64: 0.11, 128: 0.46}
 def _shape(name):
     import open3d as o3d
 
-    from voro3d.io import fit_frame, load_mesh
+    from voro3d.frames import fit_frame
+
+    from voro3d.io import load_mesh
 
     if name == "sphere":
         mesh = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=120)

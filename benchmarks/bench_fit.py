@@ -48,7 +48,8 @@ def _one(path, grid, steps, picture_dir, queue):
 
     from voro3d.baselines import dual_contouring, marching_cubes
     from voro3d.fitting import fit
-    from voro3d.io import fit_frame, load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
+    from voro3d.frames import fit_frame
+    from voro3d.io import load_mesh, mesh_arrays, save_mesh, to_triangle_mesh
     from voro3d.metrics import evaluate
     from voro3d.queries import sdf_grid
     from voro3d.topology import open_edge_count

@@ -34,7 +34,8 @@ GROUPS = ("thingi32", "abc", "cad", "organic")
 
 def _sdf(path: Path, grid: int):
     """Fit-frame mesh and cached SDF grid of one dev mesh (None when its inside is undefined)."""
-    from voro3d.io import fit_frame, load_mesh, mesh_arrays
+    from voro3d.frames import fit_frame
+    from voro3d.io import load_mesh, mesh_arrays
     from voro3d.queries import sdf_grid
 
     vertices, triangles = mesh_arrays(load_mesh(path))

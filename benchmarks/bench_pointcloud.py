@@ -166,7 +166,7 @@ def _orient(points, normals):
     try:
         return queue.get(timeout=ORIENT_TIMEOUT), "tangent plane"
     except Exception:  # queue.Empty: timed out (or the child died)
-        from voro3d.io import fit_frame
+        from voro3d.frames import fit_frame
         from voro3d.pointcloud import estimate_normals
 
         ours = estimate_normals(fit_frame(points).apply(points))

@@ -36,7 +36,8 @@ def main() -> None:
     import open3d as o3d
 
     from voro3d import queries
-    from voro3d.io import fit_frame, load_mesh, mesh_arrays
+    from voro3d.frames import fit_frame
+    from voro3d.io import load_mesh, mesh_arrays
 
     implementations = {"numpy": queries.winding_number, "igl": igl.winding_number}
     sphere = o3d.geometry.TriangleMesh.create_sphere(radius=0.5, resolution=40)

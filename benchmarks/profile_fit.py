@@ -47,7 +47,8 @@ import torch
 
 from voro3d import fitting as fit_module
 from voro3d.generators import initial_generators
-from voro3d.io import fit_frame, load_mesh, mesh_arrays
+from voro3d.frames import fit_frame
+from voro3d.io import load_mesh, mesh_arrays
 from voro3d.loss import PAIR_BLOCK, bisector_distance, bisector_pairs, voroloss
 from voro3d.metrics import evaluate
 from voro3d.sampling import sample_surface

@@ -5,7 +5,8 @@ import open3d as o3d
 import pytest
 
 from voro3d.baselines import dual_contouring, marching_cubes
-from voro3d.io import fit_frame, load_mesh
+from voro3d.frames import fit_frame
+from voro3d.io import load_mesh
 from voro3d.metrics import evaluate
 from voro3d.queries import sdf_grid
 from voro3d.sampling import grid_nodes

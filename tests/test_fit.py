@@ -131,12 +131,23 @@ def test_options_are_used(sphere):
     assert info.n_samples == 1000 and info.losses.shape == (5,)
 
 
-def test_progress_bar_is_off_unless_asked_for(sphere, capsys):
+def test_progress_bar_is_off_unless_asked_for_and_on_a_terminal(sphere, capsys, monkeypatch):
+    import io
+    import sys
+
     fit(sphere, 6, steps=3)
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err == ""
+    fit(sphere, 6, steps=3, progress=True)  # stderr is a pipe here, as in a log: no bar
+    assert capsys.readouterr().err == ""
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
     fit(sphere, 6, steps=3, progress=True)
-    assert "VoroMesh fit" in capsys.readouterr().err
+    assert "VoroMesh fit" in sys.stderr.getvalue()
 
 
 def test_torch_threads_are_restored(sphere):

@@ -8,7 +8,8 @@ import pytest
 from voro3d.baselines import marching_cubes
 from voro3d.voromesh import VoroMesh
 from voro3d.infer import BAND_INPUTS, DEFAULT_MODEL, NEAR, Predictor, band_input, check_sdf, predict, predict_from_mesh
-from voro3d.io import fit_frame, mesh_arrays
+from voro3d.frames import fit_frame
+from voro3d.io import mesh_arrays
 from voro3d.metrics import evaluate
 from voro3d.queries import sdf_grid
 from voro3d.sampling import grid_nodes

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from voro3d.io import (NormalizationFrame, fit_frame, load_mesh, load_points, mesh_arrays, ndc_frame,
-                       save_mesh, save_polygons, to_triangle_mesh)
+from voro3d.frames import NormalizationFrame, fit_frame, ndc_frame
+from voro3d.io import load_mesh, load_points, mesh_arrays, save_mesh, save_polygons, to_triangle_mesh
 from voro3d.topology import open_edge_count
 
 

@@ -5,7 +5,8 @@ import open3d as o3d
 import pytest
 
 from voro3d.baselines import marching_cubes
-from voro3d.io import fit_frame, load_mesh, mesh_arrays
+from voro3d.frames import fit_frame
+from voro3d.io import load_mesh, mesh_arrays
 from voro3d.metrics import evaluate, triangle_quality
 from voro3d.queries import sdf_grid
 

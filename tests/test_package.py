@@ -91,7 +91,7 @@ def test_cli_fit_eval_render(tmp_path, capsys):
 
 
 def test_cli_predict_from_mesh_and_sdf(tmp_path, capsys):
-    from voro3d.io import fit_frame
+    from voro3d.frames import fit_frame
     from voro3d.queries import sdf_grid
     from voro3d.shapes import example_mesh
 
@@ -123,7 +123,7 @@ def test_cli_reconstruct_point_cloud(tmp_path, capsys):
     capsys.readouterr()
     assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(tmp_path / "x.ply"), "--method", "learned",
                  "--steps", "40"]) == 2
-    assert "method='learned' takes no steps" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()
+    assert "--method learned takes no --steps" in capsys.readouterr().err and not (tmp_path / "x.ply").exists()
 
 
 def test_public_functions_survive_submodule_imports():

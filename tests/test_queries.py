@@ -3,7 +3,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from voro3d.io import fit_frame, load_mesh, mesh_arrays
+from voro3d.frames import fit_frame
+
+from voro3d.io import load_mesh, mesh_arrays
 from voro3d.queries import InsideOutside, sdf_grid, winding_number
 from voro3d.sampling import grid_nodes
 from voro3d.topology import open_edge_count

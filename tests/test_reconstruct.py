@@ -259,3 +259,16 @@ def test_a_mesh_far_off_its_points_is_refused():
     moved = o3d.geometry.TriangleMesh(sphere).translate([0.3, 0.0, 0.0])
     with pytest.raises(ValueError, match="voxels from the median point"):
         _check_fit(moved, points, 0.05)
+
+
+@pytest.mark.parametrize("make", [lambda grid: reconstruct(example_mesh(), grid), lambda grid: VoroMeshStage(grid)])
+@pytest.mark.parametrize("grid, error", [("fine", ValueError), (3, ValueError), (2.5, TypeError)])
+def test_one_grid_rule_for_the_function_and_the_stage(make, grid, error):
+    with pytest.raises(error, match="grid must be"):
+        make(grid)
+
+
+def test_allow_open_is_for_meshes():
+    points, _ = sample_surface(example_mesh(), 2000, seed=0)
+    with pytest.raises(ValueError, match="allow_open applies to meshes only"):
+        reconstruct(points, 16, allow_open=True)

@@ -103,6 +103,24 @@ def test_colours_and_shading_reach_the_picture(tmp_path, sphere, shading):
     assert shape[:, 0].std() > 5  # and it is shaded, not flat
 
 
+@pytest.mark.parametrize("backend", ["matplotlib", "auto"])
+def test_a_mesh_with_vertex_colours_is_drawn_in_them(tmp_path, backend):
+    """Top half green, bottom half red (a coloured cloud's reconstruction carries its colours)."""
+    mesh = example_mesh("sphere")
+    top = np.asarray(mesh.vertices)[:, 2] > 0
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.where(top[:, None], [0.1, 0.8, 0.1], [0.8, 0.1, 0.1]))
+    image = _pixels(render.render_meshes([mesh], tmp_path / "v.png", size=SMALL, view="front", backend=backend))
+    shape = image.mean(axis=2) < 250
+    rows = np.flatnonzero(shape.any(axis=1))
+    upper, lower = image[rows[0]: rows[len(rows) // 3]], image[rows[-len(rows) // 3]: rows[-1]]
+    upper, lower = upper[upper.mean(axis=2) < 250], lower[lower.mean(axis=2) < 250]
+    assert (upper[:, 1] > upper[:, 0] + 20).mean() > 0.8 and (lower[:, 0] > lower[:, 1] + 20).mean() > 0.8
+    plain = _pixels(render.render_meshes([mesh], tmp_path / "p.png", size=SMALL, view="front", colors=["tab:blue"],
+                                         backend=backend))
+    plain = plain[plain.mean(axis=2) < 250]
+    assert (plain[:, 2] > plain[:, 0]).mean() > 0.9  # colors= still overrides them
+
+
 def test_accepts_tensor_meshes_and_array_pairs(tmp_path, sphere):
     vertices, triangles = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
     tensor = o3d.t.geometry.TriangleMesh.from_legacy(sphere)

@@ -4,7 +4,7 @@ import pytest
 
 import voro3d
 from voro3d import VoroMesh
-from voro3d.io import NormalizationFrame
+from voro3d.frames import NormalizationFrame
 from voro3d.shapes import example_mesh
 
 

@@ -73,7 +73,8 @@ class KernelLoop:
         optimizer = NumpyAdam(self.positions)
         offsets = np.random.default_rng(seed).integers(self.n_samples, size=steps)
         losses = np.empty(steps)
-        for step in tqdm(range(steps), desc="VoroMesh fit", disable=not progress, leave=False):
+        # disable=None: a bar on a terminal only; a log would get a line per update.
+        for step in tqdm(range(steps), desc="VoroMesh fit", disable=None if progress else True, leave=False):
             window = slice(offsets[step], offsets[step] + self.batch)
             losses[step] = _fitkernel.voroloss(self.samples[window], self.positions, self.candidates[window],
                                                self.grad, threads=self.threads)

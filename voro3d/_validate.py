@@ -76,6 +76,29 @@ def positive_int(value, name: str, *, minimum: int = 1) -> int:
     return int(value)
 
 
+MIN_GRID = 4
+# A mesh has no point spacing to choose a grid from: grid="auto" is this for a mesh.
+MESH_AUTO_GRID = 32
+
+
+def grid_option(grid, *, allow_auto: bool = True):
+    """``grid`` checked by the one rule of every entry point: ``"auto"`` or an integer >= ``MIN_GRID``.
+
+    Raises
+    ------
+    ValueError
+        Any other string (``"auto"`` too where ``allow_auto`` is False), or an integer under ``MIN_GRID``.
+    TypeError
+        Neither a string nor an integer.
+    """
+    if isinstance(grid, str):
+        if grid == "auto" and allow_auto:
+            return grid
+        expected = "'auto' or an integer" if allow_auto else "an integer"
+        raise ValueError(f"grid must be {expected} >= {MIN_GRID}, got {grid!r}")
+    return positive_int(grid, "grid", minimum=MIN_GRID)
+
+
 def method_options(method: str, owner: str, **options) -> dict:
     """The ``options`` given (not None), refused unless ``method`` is ``owner``, the method that uses them.
 

@@ -1,12 +1,15 @@
 """The ``voro3d`` command: a thin layer over the library.
 
-Errors in the input become one line on stderr and exit status 2; outputs are written
-atomically, so a failed run leaves no file behind.
+Errors in the input become one line on stderr, naming the command-line flags, and exit status 2;
+output paths are checked before any work, and outputs are written atomically, so a failed run
+leaves no file behind.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import sys
 from pathlib import Path
 
@@ -33,13 +36,13 @@ def _fit(args) -> None:
 
     source = load_mesh(args.mesh)
     shape, _ = fit(source, grid=args.grid, steps=args.steps, seed=args.seed, device=args.device,
-                   progress=not args.quiet)
+                   allow_open=args.allow_open, progress=not args.quiet)
     mesh = shape.to_open3d(clean=not args.no_clean, surface=None if args.no_clean else source)
     save_mesh(mesh, args.output)
     _maybe_save_polygons(args, shape)
     if args.save_generators:
         shape.save(args.save_generators)
-    _maybe_render(args, [source, mesh], ["input", f"VoroMesh {args.grid}^3"])
+    _maybe_render(args, [source, mesh], ["input", f"VoroMesh {shape.grid}^3"])
     _say(args, f"wrote {args.output} ({len(shape.generators)} generators, {len(mesh.triangles)} triangles)")
 
 
@@ -58,7 +61,7 @@ def _predict(args) -> None:
         from .io import load_mesh
 
         reference = load_mesh(source)
-        shape = predictor.predict_from_mesh(reference, 32 if args.grid is None else args.grid,
+        shape = predictor.predict_from_mesh(reference, "auto" if args.grid is None else args.grid,
                                             fallback=not args.no_fallback)
     mesh = shape.to_open3d(clean=not args.no_clean, surface=None if args.no_clean else reference)
     save_mesh(mesh, args.output)
@@ -73,28 +76,70 @@ def _reconstruct(args) -> None:
     from .reconstruction import reconstruct
 
     mesh = reconstruct(args.input, args.grid, method=args.method, steps=args.steps, seed=args.seed,
-                       device=args.device, denoise=args.denoise, clean=not args.no_clean, progress=not args.quiet)
+                       device=args.device, denoise=args.denoise, allow_open=args.allow_open, clean=not args.no_clean,
+                       progress=not args.quiet)
     save_mesh(mesh, args.output)
-    _maybe_render(args, [mesh], [f"VoroMesh ({args.method}) {args.grid}^3"])
+    _maybe_render(args, [mesh], [f"VoroMesh ({args.method}, grid {args.grid})"])
     _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
 
 
-def _polygon_path(text: str) -> str:
-    """Checked before anything runs, so that a bad suffix leaves no mesh behind either."""
-    from .io import POLYGON_SUFFIXES
+def output_path(*suffixes: str):
+    """An argparse type for a file to write: its suffix and its folder checked before any work runs."""
 
-    if Path(text).suffix.lower() not in POLYGON_SUFFIXES:
-        raise argparse.ArgumentTypeError(f"must end in one of {', '.join(POLYGON_SUFFIXES)}, got {text!r}")
-    return text
-
-
-def _grid_or_auto(text: str):
-    if text == "auto":
+    def check(text: str) -> str:
+        path = Path(text)
+        if path.suffix.lower() not in suffixes:
+            expected = " or ".join(suffixes) if len(suffixes) < 3 else "one of " + " ".join(suffixes)
+            raise argparse.ArgumentTypeError(f"must end in {expected}, got {text!r}")
+        folder = path.parent
+        if not folder.is_dir():
+            raise argparse.ArgumentTypeError(f"folder {str(folder)!r} of {text!r} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise argparse.ArgumentTypeError(f"folder {str(folder)!r} of {text!r} is not writable")
+        if path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r} is a folder")
         return text
+
+    check.__name__ = "path"
+    return check
+
+
+def grid_argument(text: str):
+    """``--grid``: ``auto`` or an integer >= 4, the rule of every subcommand (``_validate.grid_option``)."""
+    from ._validate import grid_option
+
     try:
-        return int(text)
+        return grid_option(text if text == "auto" else int(text))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"must be 'auto' or an integer >= 4, got {text!r}") from error
+
+
+def positive_argument(text: str) -> int:
+    """An integer >= 1 (``--steps``)."""
+    try:
+        value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"grid must be an integer or 'auto', got {text!r}") from None
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
+# Python spellings in the library's messages, as the flags that set them.
+_FLAG_NAMES = [
+    (re.compile(r"allow_open=True"), "--allow-open"),
+    (re.compile(r"denoise=None"), "neither --denoise nor --no-denoise"),
+    (re.compile(r"method='(\w+)'"), r"--method \1"),
+    (re.compile(r"\b(steps|seed|device|denoise|grid|allow_open)\b(?= (must|applies|or|\())"),
+     lambda match: "--" + match.group(1).replace("_", "-")),
+]
+
+
+def flag_names(message: str) -> str:
+    """``message`` with the Python names of options written as the command's flags."""
+    for pattern, replacement in _FLAG_NAMES:
+        message = pattern.sub(replacement, message)
+    return message
 
 
 def _load_sdf(path: Path):
@@ -170,98 +215,161 @@ def _say(args, message: str) -> None:
         print(message, file=sys.stderr)
 
 
+def _example(args) -> None:
+    from .io import save_mesh, save_points
+    from .sampling import sample_surface
+    from .shapes import example_mesh
+
+    mesh = example_mesh(args.name)
+    if args.points is None:
+        save_mesh(mesh, args.output)
+        _say(args, f"wrote {args.output} (the {args.name} mesh, {len(mesh.triangles)} triangles)")
+        return
+    points, normals = sample_surface(mesh, args.points, seed=args.seed)
+    save_points(points, args.output, normals=None if args.no_normals else normals)
+    _say(args, f"wrote {args.output} ({args.points} points of the {args.name}"
+               f"{'' if args.no_normals else ', with normals'})")
+
+
+def _command(commands, name: str, help_text: str, example: str, run):
+    """A subcommand with its one-line help, a description and one example that runs as pasted."""
+    parser = commands.add_parser(name, help=help_text, description=help_text[0].upper() + help_text[1:] + ".",
+                                 epilog=f"example:\n  {example}", formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.set_defaults(run=run)
+    return parser
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="voro3d", description=__doc__.splitlines()[0])
+    from .io import MESH_SUFFIXES, POINT_SUFFIXES
+    from .shapes import example_names
+
+    parser = argparse.ArgumentParser(
+        prog="voro3d", description="Watertight, self-intersection-free surface meshes (VoroMesh) from point "
+                                   "clouds, meshes and SDF grids. 'voro3d COMMAND --help' shows a command's options.",
+        epilog="start here:\n  voro3d example bracket --points 20000 -o cloud.ply\n"
+               "  voro3d reconstruct cloud.ply -o mesh.ply --png mesh.png",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=_version())
-    commands = parser.add_subparsers(dest="command", required=True)
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    extract = commands.add_parser("extract", help="watertight mesh from saved generators + occupancy (.npz)")
-    extract.add_argument("generators", help=".npz with arrays 'generators' (n,3) and 'occupancy' (n,)")
-    _mesh_output_options(extract, polygons=True)
-    extract.set_defaults(run=_extract)
+    example = _command(commands, "example", "write a bundled shape as a mesh, or sampled as a point cloud",
+                       "voro3d example bracket --points 20000 -o cloud.ply", _example)
+    example.add_argument("name", choices=example_names(), help="the shape")
+    example.add_argument("-o", "--output", required=True, type=output_path(*MESH_SUFFIXES, *POINT_SUFFIXES),
+                         help="output mesh, or point cloud with --points (.ply .pcd .xyz .xyzn .npy ...)")
+    example.add_argument("--points", type=positive_argument, help="sample this many surface points instead")
+    example.add_argument("--no-normals", action="store_true", help="leave the points' normals out")
+    example.add_argument("--seed", type=int, default=0, help="seed of the sampling, default 0")
+    example.add_argument("-q", "--quiet", action="store_true", help="no message")
 
-    fit = commands.add_parser("fit", help="fit a VoroMesh to a watertight mesh (direct optimisation)")
-    fit.add_argument("mesh", help="input mesh (.ply, .obj, .off, .stl)")
-    _mesh_output_options(fit, polygons=True)
-    fit.add_argument("--grid", type=int, default=32, help="grid resolution g (g^3 nodes), default 32")
-    fit.add_argument("--steps", type=int, default=400, help="Adam steps, default 400")
-    fit.add_argument("--seed", type=int, default=0)
-    fit.add_argument("--device", default="cpu", help="cpu or cuda")
-    fit.add_argument("--save-generators", help="also save generators + occupancy (.npz)")
-    fit.set_defaults(run=_fit)
-
-    predict = commands.add_parser("predict", help="learned VoroMesh from an SDF grid or a mesh (ONNX, no torch)")
-    predict.add_argument("input", help="SDF grid (.npy, or .npz with array 'sdf'; (g,g,g), negative inside, "
-                                       "nodes spanning [-1,1]^3) or a mesh")
-    _mesh_output_options(predict, polygons=True)
-    predict.add_argument("--grid", type=int, help="SDF resolution when INPUT is a mesh, default 32 (an SDF grid "
-                                                  "INPUT has its own)")
-    predict.add_argument("--model", help="ONNX model (default: the shipped voro3d/models/voromesh_sdf.onnx)")
-    predict.add_argument("--no-fallback", action="store_true", help="trust the network's occupancy everywhere")
-    predict.set_defaults(run=_predict)
-
-    rebuild = commands.add_parser("reconstruct", help="watertight mesh from a point cloud (or mesh) file")
-    rebuild.add_argument("input", help="point cloud (.ply .pcd .xyz .xyzn .xyzrgb .pwn .pts; .npy (n,3)/(n,6)) or mesh")
+    rebuild = _command(commands, "reconstruct", "watertight mesh from a point cloud or mesh file",
+                       "voro3d reconstruct cloud.ply -o mesh.ply --png mesh.png", _reconstruct)
+    rebuild.add_argument("input", help=f"point cloud ({' '.join(POINT_SUFFIXES)}; .npy (n,3) or (n,6)) or mesh "
+                                       f"({' '.join(MESH_SUFFIXES)})")
     _mesh_output_options(rebuild)
-    rebuild.add_argument("--grid", type=_grid_or_auto, default="auto",
-                         help="grid resolution, or 'auto' (default: from the point spacing, 32-64; 32 for meshes)")
-    rebuild.add_argument("--method", choices=("fit", "learned"), default="fit")
+    rebuild.add_argument("--grid", type=grid_argument, default="auto",
+                         help="grid resolution g (g^3 nodes), an integer >= 4, or 'auto' (default: from the point "
+                              "spacing, 32-64; 32 for a mesh)")
+    rebuild.add_argument("--method", choices=("fit", "learned"), default="fit",
+                         help="direct VoroLoss fit (default) or the shipped learned model (ONNX)")
     # Fit options default to None: the fit's defaults apply, and --method learned refuses them.
-    rebuild.add_argument("--steps", type=int, help="Adam steps of --method fit, default 400 for a mesh, 200 for a point cloud")
+    rebuild.add_argument("--steps", type=positive_argument,
+                         help="Adam steps of --method fit, default 400 for a mesh, 200 for a point cloud")
     rebuild.add_argument("--seed", type=int, help="seed of --method fit, default 0")
     rebuild.add_argument("--device", help="cpu or cuda, for --method fit (default cpu)")
     smoothing = rebuild.add_mutually_exclusive_group()
     smoothing.add_argument("--denoise", dest="denoise", action="store_const", const=True, default=None,
-                           help="always smooth the points onto the IMLS surface (default: when noise is detected)")
+                           help="point clouds: always smooth the points onto the IMLS surface (default: when noise "
+                                "is detected)")
     smoothing.add_argument("--no-denoise", dest="denoise", action="store_const", const=False,
-                           help="never smooth the points")
-    rebuild.set_defaults(run=_reconstruct)
+                           help="point clouds: never smooth the points")
+    _allow_open_option(rebuild)
 
-    train = commands.add_parser("train", help="train the SDF -> generators network (needs torch)")
-    train.add_argument("--config", required=True, help="JSON config, e.g. models/voromesh_sdf.json")
-    train.add_argument("-q", "--quiet", action="store_true")
-    train.set_defaults(run=_train)
+    fit = _command(commands, "fit", "fit a VoroMesh to a watertight mesh (direct optimisation)",
+                   "voro3d example knot -o knot.ply && voro3d fit knot.ply -o knot_voromesh.ply --png knot.png", _fit)
+    fit.add_argument("mesh", help=f"input mesh ({' '.join(MESH_SUFFIXES)})")
+    _mesh_output_options(fit, polygons=True)
+    fit.add_argument("--grid", type=grid_argument, default="auto",
+                     help="grid resolution g (g^3 nodes), an integer >= 4, or 'auto' (default: 32)")
+    fit.add_argument("--steps", type=positive_argument, default=400, help="Adam steps, default 400")
+    fit.add_argument("--seed", type=int, default=0, help="seed of the samples and batches, default 0")
+    fit.add_argument("--device", default="cpu", help="cpu (default) or cuda (needs torch)")
+    fit.add_argument("--save-generators", type=output_path(".npz"), help="also save the VoroMesh (.npz)")
+    _allow_open_option(fit)
 
-    export = commands.add_parser("export-onnx", help="export a training checkpoint to ONNX, checked against torch")
-    export.add_argument("checkpoint")
-    export.add_argument("-o", "--output", required=True, help="output .onnx")
-    export.set_defaults(run=_export)
+    predict = _command(commands, "predict", "learned VoroMesh from an SDF grid or a mesh (ONNX, no torch)",
+                       "voro3d example blob -o blob.ply && voro3d predict blob.ply -o blob_learned.ply", _predict)
+    predict.add_argument("input", help="SDF grid (.npy, or .npz with array 'sdf'; (g,g,g), negative inside, "
+                                       "nodes spanning [-1,1]^3) or a mesh")
+    _mesh_output_options(predict, polygons=True)
+    predict.add_argument("--grid", type=grid_argument,
+                         help="SDF resolution when INPUT is a mesh, an integer >= 4 or 'auto' (default: 32); an SDF "
+                              "grid INPUT has its own")
+    predict.add_argument("--model", help="ONNX model (default: the shipped voro3d/models/voromesh_sdf.onnx)")
+    predict.add_argument("--no-fallback", action="store_true", help="trust the network's occupancy everywhere")
+
+    extract = _command(commands, "extract", "watertight mesh from a saved VoroMesh (.npz)",
+                       "voro3d fit knot.ply -o knot_voromesh.ply --save-generators knot.npz && "
+                       "voro3d extract knot.npz -o knot_again.ply", _extract)
+    extract.add_argument("generators", help=".npz with arrays 'generators' (n,3) and 'occupancy' (n,) "
+                                            "(and 'grid', 'frame_center', 'frame_scale' where known)")
+    _mesh_output_options(extract, polygons=True)
 
     from .batch import add_batch_parser
 
     add_batch_parser(commands)
 
-    evaluate = commands.add_parser("eval", help="Chamfer, F1, normal consistency and watertightness")
-    evaluate.add_argument("predicted")
-    evaluate.add_argument("ground_truth")
-    evaluate.add_argument("--n-samples", "--n-points", dest="n_samples", type=int, default=100_000,
+    evaluate = _command(commands, "eval", "Chamfer, F1, normal consistency and watertightness of a mesh",
+                        "voro3d eval knot_voromesh.ply knot.ply", _eval)
+    evaluate.add_argument("predicted", help="the mesh to score")
+    evaluate.add_argument("ground_truth", help="the mesh it should match")
+    evaluate.add_argument("--n-samples", "--n-points", dest="n_samples", type=positive_argument, default=100_000,
                           help="surface samples per mesh, default 100000")
-    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--seed", type=int, default=0, help="seed of the samples, default 0")
     evaluate.add_argument("--json", action="store_true", help="print JSON instead of a table")
     evaluate.add_argument("--no-self-intersection", action="store_true",
                           help="skip the triangle-pair intersection test (slow on big meshes)")
-    evaluate.set_defaults(run=_eval)
 
-    render = commands.add_parser("render", help="PNG of meshes side by side, or an error map")
-    render.add_argument("meshes", nargs="+")
-    render.add_argument("-o", "--output", required=True, help="output .png")
-    render.add_argument("--titles", nargs="*")
+    render = _command(commands, "render", "PNG of meshes side by side, or an error map",
+                      "voro3d render knot.ply knot_voromesh.ply -o side_by_side.png", _render)
+    render.add_argument("meshes", nargs="+", help="meshes to draw, one panel each")
+    render.add_argument("-o", "--output", required=True, type=output_path(".png"), help="output .png")
+    render.add_argument("--titles", nargs="*", help="one title per mesh (default: the file names)")
     render.add_argument("--error-against", help="colour the first mesh by its distance to this one")
-    render.add_argument("-q", "--quiet", action="store_true")
-    render.set_defaults(run=_render)
+    render.add_argument("-q", "--quiet", action="store_true", help="no message")
+
+    train = _command(commands, "train", "train the SDF -> generators network (needs torch)",
+                     "voro3d train --config models/voromesh_sdf.json", _train)
+    train.add_argument("--config", required=True, help="JSON config, e.g. models/voromesh_sdf.json")
+    train.add_argument("-q", "--quiet", action="store_true", help="no message")
+
+    export = _command(commands, "export-onnx", "export a training checkpoint to ONNX, checked against torch",
+                      "voro3d export-onnx runs/voromesh/best.pt -o model.onnx", _export)
+    export.add_argument("checkpoint", help="a checkpoint written by voro3d train")
+    export.add_argument("-o", "--output", required=True, type=output_path(".onnx"), help="output .onnx")
     return parser
+
+
+def _allow_open_option(parser) -> None:
+    parser.add_argument("--allow-open", action="store_true",
+                        help="mesh input: accept boundary edges, inside decided by generalized winding number")
 
 
 def _mesh_output_options(parser, *, polygons: bool = False) -> None:
     """The options every command that writes a mesh shares; ``--polygons`` where a VoroMesh is made."""
-    parser.add_argument("-o", "--output", required=True, help="output mesh (.ply, .obj, .off, .stl, .glb)")
-    parser.add_argument("--png", help="also render a picture here (with the input beside it where there is one)")
+    from .io import MESH_SUFFIXES, POLYGON_SUFFIXES
+
+    parser.add_argument("-o", "--output", required=True, type=output_path(*MESH_SUFFIXES),
+                        help=f"output mesh ({' '.join(MESH_SUFFIXES)})")
+    parser.add_argument("--png", type=output_path(".png"),
+                        help="also render a picture here (with the input beside it where there is one)")
     parser.add_argument("--no-clean", action="store_true",
                         help="keep the Voronoi faces as they are (default: cleaned, see voro3d.cleaning, then "
                         "fitted to the input mesh or the cloud's target surface, see voro3d.snapping)")
     if polygons:
-        parser.add_argument("--polygons", type=_polygon_path,
-                            help="also write the Voronoi faces as polygons, one per face, uncleaned (.ply, .obj, .off)")
+        parser.add_argument("--polygons", type=output_path(*POLYGON_SUFFIXES),
+                            help="also write the Voronoi faces as polygons, one per face, uncleaned "
+                                 f"({' '.join(POLYGON_SUFFIXES)})")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
 
 
@@ -276,10 +384,10 @@ def main(argv=None) -> int:
     try:
         status = args.run(args)
     except (ValueError, MissingExtra, FileNotFoundError, IsADirectoryError, PermissionError) as error:
-        print(f"voro3d {args.command}: error: {error}", file=sys.stderr)
+        print(f"voro3d {args.command}: error: {flag_names(str(error))}", file=sys.stderr)
         return 2
     except RuntimeError as error:  # a failed internal check or worker: say it in one line too
-        print(f"voro3d {args.command}: failed: {error}", file=sys.stderr)
+        print(f"voro3d {args.command}: failed: {flag_names(str(error))}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"voro3d {args.command}: interrupted", file=sys.stderr)

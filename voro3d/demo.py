@@ -20,7 +20,8 @@ def run(out: Path, *, shape: str = "bracket", grid: int = 32, progress: bool = F
     """Fit ``shape`` at ``grid``, write meshes, metrics and a picture; return the metrics."""
     from .baselines import marching_cubes
     from .fitting import fit
-    from .io import fit_frame, save_mesh, to_triangle_mesh
+    from .frames import fit_frame
+    from .io import save_mesh, to_triangle_mesh
     from .metrics import evaluate
     from .render import render_meshes
     from .queries import sdf_grid

@@ -13,10 +13,11 @@ import numpy as np
 
 from ._cpufit import KernelLoop, cpu_threads, spatial_order
 from ._extras import require
-from ._validate import as_points, positive_int
+from ._validate import MESH_AUTO_GRID, as_points, grid_option, positive_int
 from .delaunay import triangulate
 from .generators import initial_generators
-from .io import fit_frame, mesh_arrays
+from .frames import fit_frame
+from .io import mesh_arrays
 from .occupancy import label_cells
 from .queries import InsideOutside
 from .sampling import sample_surface
@@ -94,7 +95,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
         progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to a triangle mesh, and report how the fit went.
 
-    The mesh is mapped to the fit frame (:func:`voro3d.io.fit_frame`: bounding box centred,
+    The mesh is mapped to the fit frame (:func:`voro3d.frames.fit_frame`: bounding box centred,
     diagonal 2), sampled (``n_samples`` area-uniform points), and the generators start at the
     corners of the grid voxels holding samples (:func:`voro3d.generators.initial_generators`).
     Adam then minimises VoroLoss (:func:`voro3d.loss.voroloss`) on a random ``batch_fraction``
@@ -106,8 +107,9 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     ----------
     mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
         Closed (unless ``allow_open``), in any units.
-    grid : int
-        Nodes per axis of the initial grid over ``[-1, 1]^3``, ``>= 2`` (the paper uses 32-128).
+    grid : int or "auto"
+        Nodes per axis of the initial grid over ``[-1, 1]^3``, ``>= 4`` (the paper uses 32-128);
+        ``"auto"`` is 32 (a mesh has no point spacing to choose it from).
     steps : int
         Adam steps (official: 400).
     lr : float
@@ -165,7 +167,8 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     loop runs in torch, the reference the kernel is tested against.
     """
     start = time.perf_counter()
-    grid = positive_int(grid, "grid", minimum=2)
+    grid = grid_option(grid)
+    grid = MESH_AUTO_GRID if grid == "auto" else grid
     n_samples = SAMPLES_PER_FACE * grid**2 if n_samples is None else positive_int(n_samples, "n_samples")
     _device(device)  # fail before the sampling, not after
 
@@ -196,7 +199,7 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         :class:`voro3d.queries.InsideOutside`, a point cloud's winding number, ...).
     grid, steps, lr, milestones, gamma, batch_fraction, k, seed, device, progress
         As in :func:`fit`.
-    frame : voro3d.io.NormalizationFrame, optional
+    frame : voro3d.frames.NormalizationFrame, optional
         The generators are mapped back through ``frame.invert``; None keeps the fit frame.
 
     Returns
@@ -207,7 +210,7 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         ``sampling_seconds`` is 0: the samples came in.
     """
     start = time.perf_counter()
-    grid = positive_int(grid, "grid", minimum=2)
+    grid = grid_option(grid, allow_auto=False)
     steps = positive_int(steps, "steps")
     k = positive_int(k, "k", minimum=2)
     if not (np.isfinite(lr) and lr > 0):
@@ -338,7 +341,8 @@ class _FitLoop:
         # The batches of voro3d._cpufit.KernelLoop, so that a seed gives the same ones on CPU and CUDA.
         offsets = np.random.default_rng(seed).integers(self.n_samples, size=steps).tolist()
         losses = torch.empty(steps, dtype=torch.float32, device=generators_t.device)
-        for step in tqdm(range(steps), desc="VoroMesh fit", disable=not progress, leave=False):
+        # disable=None: a bar on a terminal only; a log would get a line per update.
+        for step in tqdm(range(steps), desc="VoroMesh fit", disable=None if progress else True, leave=False):
             generators_t.grad = None
             loss = torch.zeros((), device=generators_t.device)
             # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at

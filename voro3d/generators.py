@@ -22,7 +22,7 @@ def initial_generators(samples, grid: int) -> np.ndarray:
     Parameters
     ----------
     samples : (m, 3) float
-        Surface samples in the fit frame (:func:`voro3d.io.fit_frame`), inside ``[-1, 1]^3``.
+        Surface samples in the fit frame (:func:`voro3d.frames.fit_frame`), inside ``[-1, 1]^3``.
         Samples outside are clipped into the boundary voxels.
     grid : int
         Nodes per axis, ``>= 2``; voxels have side ``h = 2 / (grid - 1)``.

@@ -294,7 +294,7 @@ class Predictor:
         sdf : (g, g, g) float array
             Signed distance at the nodes of :func:`voro3d.sampling.grid_nodes` (``[-1, 1]^3``,
             node ``[i, j, k]`` at ``-1 + 2 (i, j, k) / (g - 1)``), negative inside, in those
-            units; ``g >= 4``. The shape should sit inside the grid, as :func:`voro3d.io.fit_frame`
+            units; ``g >= 4``. The shape should sit inside the grid, as :func:`voro3d.frames.fit_frame`
             places it.
         fallback : bool, keyword-only
             Use the SDF fallbacks (module docstring). Off, only the network decides.
@@ -313,13 +313,13 @@ class Predictor:
         net_input, offsets, logits = self._run(sdf)
         return assemble(sdf, net_input, offsets, logits, near=self.near, fallback=fallback)
 
-    def predict_from_mesh(self, mesh, grid: int = 32, *, fallback: bool = True) -> VoroMesh:
+    def predict_from_mesh(self, mesh, grid=32, *, fallback: bool = True, allow_open: bool = False) -> VoroMesh:
         """Learned VoroMesh of a closed triangle mesh, in the mesh's own units.
 
         Like :func:`voro3d.fit`, a mesh in and a VoroMesh out (``.to_open3d()`` gives the
         watertight mesh; :func:`voro3d.reconstruct` with ``method="learned"`` returns it directly).
 
-        The mesh is put in its fit frame (:func:`voro3d.io.fit_frame`), its SDF is sampled on a
+        The mesh is put in its fit frame (:func:`voro3d.frames.fit_frame`), its SDF is sampled on a
         ``grid^3`` lattice (:func:`voro3d.queries.sdf_grid`), and the predicted generators are
         mapped back.
 
@@ -327,24 +327,28 @@ class Predictor:
         ----------
         mesh : open3d.geometry.TriangleMesh or (vertices, triangles)
             Closed (its inside must be defined).
-        grid : int
-            Nodes per axis, ``>= 4``; the shipped model was trained at 32 and 64.
+        grid : int or "auto"
+            Nodes per axis, ``>= 4`` (``"auto"``: 32); the shipped model was trained at 32 and 64.
         fallback : bool, keyword-only
             See :meth:`predict`.
+        allow_open : bool, keyword-only
+            Accept a mesh with boundary edges, its SDF signed by generalized winding number.
 
         Returns
         -------
         VoroMesh
             Generators in the units of ``mesh``.
         """
-        from ._validate import positive_int
-        from .io import fit_frame, mesh_arrays
+        from ._validate import MESH_AUTO_GRID, grid_option
+        from .frames import fit_frame
+        from .io import mesh_arrays
         from .queries import sdf_grid
 
-        grid = positive_int(grid, "grid", minimum=4)
+        grid = grid_option(grid)
+        grid = MESH_AUTO_GRID if grid == "auto" else grid
         vertices, triangles = mesh_arrays(mesh)
         frame = fit_frame((vertices, triangles))
-        voro = self.predict(sdf_grid((frame.apply(vertices), triangles), grid), fallback=fallback)
+        voro = self.predict(sdf_grid((frame.apply(vertices), triangles), grid, allow_open=allow_open), fallback=fallback)
         return VoroMesh(frame.invert(voro.generators), voro.occupancy, grid=voro.grid, frame=frame)
 
 
@@ -367,6 +371,6 @@ def predict(sdf, *, model=None, fallback: bool = True) -> VoroMesh:
     return _predictor(model).predict(sdf, fallback=fallback)
 
 
-def predict_from_mesh(mesh, grid: int = 32, *, model=None, fallback: bool = True) -> VoroMesh:
+def predict_from_mesh(mesh, grid=32, *, model=None, fallback: bool = True, allow_open: bool = False) -> VoroMesh:
     """:meth:`Predictor.predict_from_mesh` with ``model`` as in :func:`predict`."""
-    return _predictor(model).predict_from_mesh(mesh, grid, fallback=fallback)
+    return _predictor(model).predict_from_mesh(mesh, grid, fallback=fallback, allow_open=allow_open)

@@ -1,11 +1,7 @@
-"""Reading and writing meshes, point clouds, SDF grids and VoroMesh files; normalisation frames.
+"""Reading and writing meshes, point clouds and polygon meshes, atomically; Open3D <-> arrays.
 
-Two frames matter (both centre the bounding box at the origin, uniform scale):
-
-* :func:`ndc_frame` -- bounding-box diagonal 1. The paper evaluates CD/F1/NC here, as NDC does.
-* :func:`fit_frame` -- bounding-box diagonal 2, i.e. twice the NDC scale. The official VoroMesh code
-  fits and samples SDF grids over ``[-1, 1]^3`` in this frame (``2 * NDCnormalize(v)``); the shape
-  then fits inside ``[-1, 1]^3`` with room to spare, since no half-extent exceeds 1.
+VoroMesh files are :meth:`voro3d.VoroMesh.save`'s, SDF grids plain ``.npy``/``.npz``
+(``voro3d predict``); normalisation frames live in :mod:`voro3d.frames`.
 """
 from __future__ import annotations
 
@@ -13,16 +9,15 @@ import contextlib
 import os
 import tempfile
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ._validate import as_points
+from .geometry import vertex_normals
 
-__all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POLYGON_SUFFIXES", "NormalizationFrame", "atomic_path", "fit_frame",
-           "load_mesh", "load_points", "mesh_arrays", "ndc_frame", "save_mesh", "save_polygons", "smallest_angles",
-           "to_triangle_mesh", "vertex_normals"]
+__all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POLYGON_SUFFIXES", "atomic_path", "load_mesh", "load_points",
+           "mesh_arrays", "save_mesh", "save_points", "save_polygons", "to_triangle_mesh"]
 
 # Vertices closer than this fraction of the bounding-box diagonal are one vertex. Files repeat a
 # position bit-for-bit at OBJ UV seams and in STL triangle soups, so a tiny tolerance suffices and
@@ -126,7 +121,7 @@ def to_triangle_mesh(vertices: np.ndarray, triangles: np.ndarray, *, normals: bo
     vertices : (v, 3) float
     triangles : (t, 3) int
     normals : bool, keyword-only
-        Also set area-weighted vertex normals (:func:`vertex_normals`); default none.
+        Also set area-weighted vertex normals (:func:`voro3d.geometry.vertex_normals`); default none.
     """
     import open3d as o3d
 
@@ -138,32 +133,6 @@ def to_triangle_mesh(vertices: np.ndarray, triangles: np.ndarray, *, normals: bo
         # Area-weighted, as Open3D's compute_vertex_normals, which takes 0.7 s at 2e5 triangles here.
         mesh.vertex_normals = o3d.utility.Vector3dVector(vertex_normals(vertices, triangles))
     return mesh
-
-
-def smallest_angles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """The smallest angle of each triangle, ``(t,)`` degrees; 0 for a triangle with a side of length 0."""
-    corners = np.asarray(vertices, np.float64)[np.asarray(triangles)]
-    sides = np.linalg.norm(corners - corners[:, [1, 2, 0]], axis=2)  # side k joins corners k and k+1
-    smallest = np.full(len(corners), 180.0)
-    for k in range(3):
-        a, b, c = sides[:, k], sides[:, (k + 1) % 3], sides[:, (k + 2) % 3]  # angle opposite side a
-        with np.errstate(invalid="ignore", divide="ignore"):
-            angle = np.degrees(np.arccos(np.clip((b**2 + c**2 - a**2) / (2 * b * c), -1, 1)))
-        smallest = np.minimum(smallest, np.nan_to_num(angle, nan=0.0))
-    return smallest
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals ``(v, 3)`` float64; zero at vertices of no triangle of positive area."""
-    vertices = np.asarray(vertices, np.float64)
-    triangles = np.asarray(triangles)
-    a = vertices[triangles[:, 0]]
-    face = np.cross(vertices[triangles[:, 1]] - a, vertices[triangles[:, 2]] - a)
-    corners = triangles.reshape(-1)
-    n = vertices.shape[0]
-    summed = np.stack([np.bincount(corners, weights=np.repeat(face[:, d], 3), minlength=n) for d in range(3)], axis=1)
-    length = np.linalg.norm(summed, axis=1, keepdims=True)
-    return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
 
 
 def load_mesh(path, *, weld: bool = True):
@@ -326,6 +295,43 @@ def save_mesh(mesh, path) -> Path:
     return path
 
 
+def save_points(points, path, *, normals=None) -> Path:
+    """Write a point cloud atomically; the suffix picks the format (:data:`POINT_SUFFIXES`).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    path : str or os.PathLike
+        ``.npy`` holds (n, 3), or (n, 6) with normals; ``.xyz``/``.pwn`` are text, with normals
+        when given; the others are written by Open3D.
+    normals : (n, 3) float, optional
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    import open3d as o3d
+
+    points = as_points(points, "points")
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in POINT_SUFFIXES:
+        raise ValueError(f"path must end in one of {', '.join(POINT_SUFFIXES)}, got {path.name!r}")
+    columns = points if normals is None else np.hstack([points, as_points(normals, "normals")])
+    with atomic_path(path, suffix=suffix) as tmp:
+        if suffix == ".npy":
+            np.save(tmp, columns)
+        elif suffix in TEXT_POINT_SUFFIXES:
+            np.savetxt(tmp, columns, fmt="%.9g")
+        else:
+            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+            if normals is not None:
+                cloud.normals = o3d.utility.Vector3dVector(columns[:, 3:])
+            if not o3d.io.write_point_cloud(str(tmp), cloud):
+                raise ValueError(f"Open3D could not write {path.name!r}")
+    return path
+
+
 def save_polygons(polygons, path) -> Path:
     """Write a polygon mesh (e.g. :func:`voro3d.extract.voronoi_polygons`) atomically.
 
@@ -389,112 +395,3 @@ def save_polygons(polygons, path) -> Path:
             lines += [f"{face.size} " + " ".join(map(str, face.tolist())) for face in faces]
             handle.write(("\n".join(lines) + "\n").encode("ascii"))
     return path
-
-
-@dataclass(frozen=True, eq=False)
-class NormalizationFrame:
-    """A translation then uniform scale: ``frame.apply(p) = (p - center) * scale``.
-
-    Attributes
-    ----------
-    center : (3,) float64
-        Point of the original units that maps to the origin.
-    scale : float
-        Positive factor from original units to frame units.
-    """
-
-    center: np.ndarray
-    scale: float
-
-    def __post_init__(self):
-        center = np.asarray(self.center, dtype=np.float64)
-        if center.shape != (3,) or not np.isfinite(center).all():
-            raise ValueError(f"center must be a finite array of shape (3,), got {self.center!r}")
-        if not np.isfinite(self.scale) or self.scale <= 0:
-            raise ValueError(f"scale must be finite and > 0, got {self.scale}")
-        object.__setattr__(self, "center", center)
-        object.__setattr__(self, "scale", float(self.scale))
-
-    def __eq__(self, other) -> bool:
-        if not isinstance(other, NormalizationFrame):
-            return NotImplemented
-        return bool(np.array_equal(self.center, other.center) and self.scale == other.scale)
-
-    def __hash__(self) -> int:
-        return hash((tuple(self.center), self.scale))
-
-    def apply(self, points) -> np.ndarray:
-        """Original units -> frame: ``(n, 3)`` in, ``(n, 3)`` float64 out."""
-        return (as_points(points, "points", min_count=0) - self.center) * self.scale
-
-    def invert(self, points) -> np.ndarray:
-        """Frame -> original units: ``(n, 3)`` in, ``(n, 3)`` float64 out."""
-        return as_points(points, "points", min_count=0) / self.scale + self.center
-
-    def apply_mesh(self, mesh):
-        """A new ``open3d.geometry.TriangleMesh`` in the frame (normals and colours kept)."""
-        return self._map_mesh(mesh, self.apply)
-
-    def invert_mesh(self, mesh):
-        """A new ``open3d.geometry.TriangleMesh`` back in original units."""
-        return self._map_mesh(mesh, self.invert)
-
-    @staticmethod
-    def _map_mesh(mesh, transform):
-        import open3d as o3d
-
-        vertices, triangles = mesh_arrays(mesh)
-        # A copy keeps normals and colours; translation and a positive uniform scale leave them valid.
-        if isinstance(mesh, o3d.geometry.TriangleMesh):
-            out = o3d.geometry.TriangleMesh(mesh)
-        else:
-            out = to_triangle_mesh(vertices, triangles)
-        out.vertices = o3d.utility.Vector3dVector(transform(vertices))
-        return out
-
-
-def _bounding_box(geometry) -> tuple[np.ndarray, np.ndarray]:
-    if hasattr(geometry, "points"):  # open3d PointCloud
-        points = np.asarray(geometry.points)
-    elif hasattr(geometry, "vertices") or hasattr(geometry, "vertex") or (
-            isinstance(geometry, (tuple, list)) and len(geometry) == 2):
-        points = mesh_arrays(geometry, "geometry")[0]
-    else:
-        points = geometry
-    points = as_points(points, "geometry points")
-    return points.min(axis=0), points.max(axis=0)
-
-
-def ndc_frame(geometry) -> NormalizationFrame:
-    """Frame with the bounding box centred at the origin and its diagonal of length 1.
-
-    The paper's (and NDC's) evaluation frame: CD, F1 at 0.003 and NC are measured here.
-
-    Parameters
-    ----------
-    geometry : open3d TriangleMesh or PointCloud, (vertices, triangles), or (n, 3) array
-
-    Returns
-    -------
-    NormalizationFrame
-
-    Raises
-    ------
-    ValueError
-        The bounding box has zero diagonal (a single point).
-    """
-    low, high = _bounding_box(geometry)
-    diagonal = float(np.linalg.norm(high - low))
-    if diagonal <= 0:
-        raise ValueError("geometry has a zero-size bounding box; it cannot be normalised")
-    return NormalizationFrame(center=(low + high) / 2, scale=1.0 / diagonal)
-
-
-def fit_frame(geometry) -> NormalizationFrame:
-    """Frame of the official VoroMesh fitting code: :func:`ndc_frame` scaled by 2 (diagonal 2).
-
-    SDF grids (:func:`voro3d.queries.sdf_grid`) span ``[-1, 1]^3`` in this frame; the shape lies
-    inside since each half-extent is at most half the diagonal.
-    """
-    ndc = ndc_frame(geometry)
-    return NormalizationFrame(center=ndc.center, scale=2.0 * ndc.scale)

@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._validate import positive_int
-from .io import mesh_arrays, ndc_frame, smallest_angles
+from .geometry import smallest_angles
+from .frames import ndc_frame
+from .io import mesh_arrays
 from .sampling import sample_surface
 
 __all__ = ["CHAMFER_FACTOR", "evaluate", "triangle_quality"]
@@ -26,7 +28,7 @@ def evaluate(pred, gt, *, n_samples: int = 100_000, seed: int = 0, delta: float 
     Parameters
     ----------
     pred, gt : open3d.geometry.TriangleMesh or (vertices, triangles)
-        Any units; both are mapped by the ground truth's NDC frame (:func:`voro3d.io.ndc_frame`).
+        Any units; both are mapped by the ground truth's NDC frame (:func:`voro3d.frames.ndc_frame`).
     n_samples : int, keyword-only
         Surface samples per mesh.
     seed : int, keyword-only

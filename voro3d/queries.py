@@ -171,8 +171,8 @@ class InsideOutside:
         if not self.closed and not allow_open:
             raise ValueError(
                 f"mesh has {bad_edges} edges not shared by exactly two triangles (open boundary or "
-                "non-manifold edges): inside/outside is undefined; pass allow_open=True to use the "
-                "generalized winding number")
+                "non-manifold edges): inside/outside is undefined; pass allow_open=True to decide it by "
+                "generalized winding number, or reconstruct its vertices as a point cloud")
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
                                   o3d.core.Tensor(self.triangles.astype(np.uint32)))
@@ -260,7 +260,7 @@ class InsideOutside:
 def sdf_grid(mesh, grid: int, *, allow_open: bool = False) -> np.ndarray:
     """Signed distance at the nodes of :func:`grid_nodes`.
 
-    The mesh must already be in the fit frame (:func:`voro3d.io.fit_frame`, bounding-box diagonal
+    The mesh must already be in the fit frame (:func:`voro3d.frames.fit_frame`, bounding-box diagonal
     2), so that the grid's ``[-1, 1]^3`` holds it; nothing is rescaled here.
 
     Parameters

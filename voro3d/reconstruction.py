@@ -11,18 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import as_points, method_options, positive_int
+from ._validate import MESH_AUTO_GRID, as_points, grid_option, method_options
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
 from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
-# Meshes have no spacing to choose a grid from: grid="auto" is this.
-MESH_AUTO_GRID = 32
-
-
 def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                device: str | None = None, denoise=None, clean: bool = True, progress: bool = False):
+                device: str | None = None, denoise=None, allow_open: bool = False, clean: bool = True,
+                progress: bool = False):
     """Watertight VoroMesh surface of a point cloud or mesh.
 
     Parameters
@@ -54,6 +51,10 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         Point clouds: the smoothing pass that moves noisy points onto the smooth surface. None
         (default) turns it on when the estimated fine-scale noise exceeds 0.13 point spacings,
         and for sparse one-sided scans; True or False force it. Meshes: must stay None.
+    allow_open : bool
+        Meshes: accept one with boundary edges, its inside decided by generalized winding number
+        (:class:`voro3d.queries.InsideOutside`). Point clouds need no such flag (open scans are
+        what they are) and refuse it.
     clean : bool
         Remove slivers, tiny faces and nearly coincident vertices (:func:`voro3d.cleaning.clean`),
         then fit the vertices, at most a quarter voxel each, to the input mesh or the cloud's
@@ -81,10 +82,7 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
-    if not (isinstance(grid, str) and grid == "auto"):
-        if isinstance(grid, str):
-            raise ValueError(f"grid must be an int >= 4 or 'auto', got {grid!r}")
-        grid = positive_int(grid, "grid", minimum=4)
+    grid = grid_option(grid)
     kind, data = _read(geometry)
     if kind == "mesh":
         if denoise is not None:
@@ -93,12 +91,14 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         if method == "fit":
             from .fitting import fit
 
-            shape = fit(data, grid, progress=progress, **fit_options)[0]
+            shape = fit(data, grid, allow_open=allow_open, progress=progress, **fit_options)[0]
         else:
             from .infer import predict_from_mesh
 
-            shape = predict_from_mesh(data, grid)
+            shape = predict_from_mesh(data, grid, allow_open=allow_open)
         return shape.to_open3d(clean=clean, surface=data if clean else None)
+    if allow_open:
+        raise ValueError("allow_open applies to meshes only; a point cloud may be open as it is")
     import open3d as o3d
 
     from .pointcloud import cloud_mesh, reconstruct_points, separate_objects, transfer_colors
@@ -136,14 +136,14 @@ class VoroMeshStage:
     """
 
     def __init__(self, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                 device: str | None = None, denoise=None, clean: bool = True, progress: bool = False):
+                 device: str | None = None, denoise=None, allow_open: bool = False, clean: bool = True,
+                 progress: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
-        if grid != "auto":
-            grid = positive_int(grid, "grid", minimum=4)
+        grid = grid_option(grid)
         self.options = dict(grid=grid, method=method, denoise=None if denoise is None else bool(denoise),
-                            clean=bool(clean), progress=progress, **fit_options)
+                            allow_open=bool(allow_open), clean=bool(clean), progress=progress, **fit_options)
 
     def __call__(self, geometry):
         return reconstruct(geometry, **self.options)

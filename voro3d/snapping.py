@@ -33,7 +33,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .io import mesh_arrays, smallest_angles, vertex_normals
+from .geometry import smallest_angles, vertex_normals
+from .io import mesh_arrays
 from .watertight import self_intersections, signed_volume
 
 __all__ = ["SnapInfo", "snap", "snap_to_surface"]

@@ -14,7 +14,7 @@ import numpy as np
 
 from ._validate import as_mask, as_points
 from .delaunay import DEFAULT_TOLERANCE, Triangulation, triangulate
-from .io import NormalizationFrame
+from .frames import NormalizationFrame
 
 __all__ = ["VoroMesh", "grid_voxel"]
 
@@ -36,7 +36,7 @@ class VoroMesh:
         True for generators whose Voronoi cell is inside the shape.
     grid : int, optional
         Nodes per axis of the grid the generators were fitted or predicted on (None: unknown).
-    frame : voro3d.io.NormalizationFrame, optional
+    frame : voro3d.frames.NormalizationFrame, optional
         Maps the generators' units onto the grid's ``[-1, 1]^3``; None when they are in it already.
     triangulation : voro3d.delaunay.Triangulation, optional
         The generators' Delaunay triangulation at ``DEFAULT_TOLERANCE``, built on first use and
@@ -57,7 +57,7 @@ class VoroMesh:
                 raise ValueError(f"grid must be an int >= 2 or None, got {self.grid!r}")
             self.grid = int(self.grid)
         if self.frame is not None and not isinstance(self.frame, NormalizationFrame):
-            raise TypeError(f"frame must be a voro3d.io.NormalizationFrame or None, got {type(self.frame).__name__}")
+            raise TypeError(f"frame must be a voro3d.frames.NormalizationFrame or None, got {type(self.frame).__name__}")
         if self.triangulation is not None and self.triangulation.site.shape[0] != self.generators.shape[0]:
             raise ValueError(f"triangulation is of {self.triangulation.site.shape[0]} generators, "
                              f"not {self.generators.shape[0]}")

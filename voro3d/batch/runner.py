@@ -10,7 +10,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from .._system import available_cpus
-from .._validate import method_options, positive_int
+from .._validate import MESH_AUTO_GRID, grid_option, method_options, positive_int
 from ..io import MESH_SUFFIXES
 from .local import run_local
 from .plan import (ENGINES, EXIT_INTERRUPTED, METHODS, RESULTS_NAME, BatchSummary, ShapeTask, _complete, _fsync,
@@ -39,8 +39,8 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
     method : str, keyword-only
         ``"fit"`` (:func:`voro3d.fitting.fit`) or ``"learned"`` (:class:`voro3d.infer.Predictor`,
         its ONNX session loaded once per worker process).
-    grid : int
-        Grid nodes per axis, ``>= 2`` for ``"fit"``, ``>= 4`` for ``"learned"``.
+    grid : int or "auto"
+        Grid nodes per axis, ``>= 4``; ``"auto"`` is 32, as for a mesh in :func:`voro3d.reconstruct`.
     steps : int, optional
         Adam steps of ``"fit"``, default 400 (:func:`voro3d.fit`'s); refused with ``"learned"``.
     seed : int
@@ -114,7 +114,8 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         raise ValueError(f"ray_address is only used with engine='ray', got engine={engine!r}")
     method_options(method, "fit", steps=steps)
     method_options(method, "learned", model=model)
-    grid = positive_int(grid, "grid", minimum=2 if method == "fit" else 4)
+    grid = grid_option(grid)
+    grid = MESH_AUTO_GRID if grid == "auto" else grid
     steps = positive_int(FIT_STEPS if steps is None else steps, "steps") if method == "fit" else None
     seed = positive_int(seed, "seed", minimum=0)
     threads = positive_int(threads, "threads")
@@ -165,7 +166,8 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
 
         from tqdm import tqdm
 
-        bar = tqdm(total=len(jobs), initial=len(final), unit="shape", desc="voro3d batch", disable=not progress)
+        bar = tqdm(total=len(jobs), initial=len(final), unit="shape", desc="voro3d batch",
+                   disable=None if progress else True)  # None: on a terminal only, not a line per update in a log
         failed = 0
 
         def record(task: ShapeTask, result: dict) -> None:
@@ -217,14 +219,19 @@ def add_batch_parser(subparsers) -> argparse.ArgumentParser:
                     f"path under OUTPUT_DIR, with one row per shape in OUTPUT_DIR/{RESULTS_NAME}. A rerun "
                     "skips the shapes already done with the same settings.",
         epilog="exit status: 0 all shapes ok, 1 some shape failed or timed out, 2 bad arguments, "
-               "130 interrupted (rerun to resume)")
+               "130 interrupted (rerun to resume)\n\nexample:\n  mkdir shapes && voro3d example knot -o shapes/knot.ply "
+               "&& voro3d example torus -o shapes/torus.ply && voro3d batch shapes meshes --eval",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("input_dir", help="folder of meshes (" + " ".join(MESH_SUFFIXES) + "), searched recursively")
     parser.add_argument("output_dir", help="folder for the output meshes and " + RESULTS_NAME)
     parser.add_argument("--method", choices=METHODS, default="fit",
                         help="direct fit or learned inference (default fit)")
-    parser.add_argument("--grid", type=int, default=32, help="grid resolution g (g^3 nodes), default 32")
-    parser.add_argument("--steps", type=int, help="Adam steps of --method fit, default 400")
-    parser.add_argument("--seed", type=int, default=0)
+    from ..cli import grid_argument, positive_argument
+
+    parser.add_argument("--grid", type=grid_argument, default="auto",
+                        help="grid resolution g (g^3 nodes), an integer >= 4, or 'auto' (default: 32)")
+    parser.add_argument("--steps", type=positive_argument, help="Adam steps of --method fit, default 400")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the fit and the metrics, default 0")
     parser.add_argument("--model", help="ONNX model of --method learned (default: the shipped one)")
     parser.add_argument("--workers", type=int, help="shapes at once (default: the available CPUs / --threads)")
     parser.add_argument("--threads", type=int, default=1,

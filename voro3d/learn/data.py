@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import positive_int
-from ..io import MESH_SUFFIXES, atomic_path, fit_frame, load_mesh, mesh_arrays
+from ..frames import fit_frame
+from ..io import MESH_SUFFIXES, atomic_path, load_mesh, mesh_arrays
 from ..queries import InsideOutside, sdf_grid
 from ..sampling import sample_surface
 

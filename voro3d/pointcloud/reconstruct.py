@@ -188,7 +188,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     from scipy.spatial import cKDTree
 
     from .._validate import method_options
-    from ..io import fit_frame
+    from ..frames import fit_frame
 
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -449,13 +449,10 @@ def _check_coverage(target, points, widths) -> None:
 
 
 def _choose_grid(grid, spacing: float) -> int:
-    from .._validate import positive_int
+    from .._validate import grid_option
 
-    if isinstance(grid, str):
-        if grid != "auto":
-            raise ValueError(f"grid must be an int >= 4 or 'auto', got {grid!r}")
+    if grid_option(grid) == "auto":
         return auto_grid(spacing)
-    grid = positive_int(grid, "grid", minimum=4)
     supported = max_supported_grid(spacing)
     if grid > supported:
         warnings.warn(f"grid {grid} is finer than the points support (voxels narrower than their spacing; up to "

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import vertex_normals
+from ..geometry import vertex_normals
 from .camera import BACKENDS, _Camera, _choice, _fit_camera, _light_directions, _srgb_to_linear, _triangle_normals, _unit
 from .open3d_child import DONE
 

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import atomic_path, to_triangle_mesh, vertex_normals
+from ..geometry import vertex_normals
+from ..io import atomic_path, to_triangle_mesh
 from .camera import MAX_MATPLOTLIB_FACES, SUPERSAMPLE, TITLE_BAND, _Camera, _lambert, _triangle_normals, _unit
 
 __all__: list[str] = []
@@ -14,11 +15,18 @@ __all__: list[str] = []
 # -- matplotlib backend
 
 
-def _decimate(vertices: np.ndarray, triangles: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
-    """At most about ``limit`` faces: quadric decimation, after a cheap first cut on huge meshes."""
+def _decimate(vertices: np.ndarray, triangles: np.ndarray, limit: int, colors=None):
+    """At most about ``limit`` faces: quadric decimation, after a cheap first cut on huge meshes.
+
+    Returns vertices, triangles and the vertex ``colors`` ((v, 3), carried along; None stays None).
+    """
     if len(triangles) <= limit:
-        return vertices, triangles
+        return vertices, triangles, colors
+    import open3d as o3d
+
     mesh = to_triangle_mesh(vertices, triangles)
+    if colors is not None:
+        mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
     if len(triangles) > 4 * limit:
         # Quadric decimation takes seconds per few hundred thousand faces; vertex clustering is ten
         # times faster. Cells of this size leave about twice the budget on a smooth surface.
@@ -27,7 +35,8 @@ def _decimate(vertices: np.ndarray, triangles: np.ndarray, limit: int) -> tuple[
         if len(clustered.triangles) >= limit:
             mesh = clustered
     simple = mesh.simplify_quadric_decimation(target_number_of_triangles=limit)
-    return np.asarray(simple.vertices), np.asarray(simple.triangles)
+    return (np.asarray(simple.vertices), np.asarray(simple.triangles),
+            np.asarray(simple.vertex_colors) if colors is not None else None)
 
 
 def _split_long_faces(corners: np.ndarray, colors: np.ndarray, limit: float, budget: int):

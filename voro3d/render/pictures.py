@@ -33,7 +33,8 @@ def render_meshes(meshes, path, *, titles=None, colors=None, size=(640, 480), vi
         One per mesh, drawn above its panel.
     colors : list of colour, optional
         One matplotlib colour per mesh (``"tab:orange"``, ``"#88aacc"``, ``(r, g, b)`` in [0, 1]);
-        default a light blue for all.
+        default each mesh's own vertex colours where it has them (a coloured cloud's
+        reconstruction), else a light blue.
     size : (int, int)
         ``(width, height)`` of each panel in pixels; the picture is ``len(meshes)`` panels wide
         plus a title band.
@@ -62,6 +63,7 @@ def render_meshes(meshes, path, *, titles=None, colors=None, size=(640, 480), vi
     path = _png_path(path)
     width, height = _size_arg(size)
     titles = [""] * len(arrays) if titles is None else [str(t) for t in _per_mesh(titles, "titles", len(arrays))]
+    vertex_rgb = _vertex_colors(meshes, arrays) if colors is None else [None] * len(arrays)
     colors = [DEFAULT_COLOR] * len(arrays) if colors is None else _per_mesh(colors, "colors", len(arrays))
     rgb = [_rgb(c, f"colors[{i}]") for i, c in enumerate(colors)]
     _view_arg(view)
@@ -73,15 +75,32 @@ def render_meshes(meshes, path, *, titles=None, colors=None, size=(640, 480), vi
     chosen = _resolve_backend(backend)
     panels = None
     if chosen == "open3d":
-        jobs = [_panel_job(v, t, camera, shading=shading, base_rgb=c) for (v, t), c in zip(arrays, rgb)]
+        jobs = [_panel_job(v, t, camera, shading=shading, base_rgb=c, vertex_rgb=own)
+                for (v, t), c, own in zip(arrays, rgb, vertex_rgb)]
         panels = _open3d_panels(jobs, required=backend == "open3d")
     if panels is None:
         split_limit = SPLIT_FRACTION * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
         panels = []
-        for (vertices, triangles), color in zip(arrays, rgb):
-            vertices, triangles = _decimate(vertices, triangles, MAX_MATPLOTLIB_FACES)
-            panels.append(_matplotlib_panel(vertices, triangles, camera, rgb=color, shading=shading, split_limit=split_limit))
+        for (vertices, triangles), color, own in zip(arrays, rgb, vertex_rgb):
+            vertices, triangles, own = _decimate(vertices, triangles, MAX_MATPLOTLIB_FACES, own)
+            panels.append(_matplotlib_panel(vertices, triangles, camera, rgb=color if own is None else own,
+                                            shading=shading, split_limit=split_limit))
     return _save(_page(panels, titles), path)
+
+
+def _vertex_colors(meshes, arrays) -> list:
+    """Each mesh's own vertex colours, ``(v, 3)`` in [0, 1], where it has them; else None."""
+    if hasattr(meshes, "triangles") or hasattr(meshes, "triangle"):  # one mesh, as _meshes_arg reads it
+        meshes = [meshes]
+    found = []
+    for mesh, (vertices, _) in zip(meshes, arrays):
+        rgb = None
+        if hasattr(mesh, "has_vertex_colors") and mesh.has_vertex_colors():
+            rgb = np.asarray(mesh.vertex_colors, np.float64)
+        elif hasattr(mesh, "vertex") and "colors" in mesh.vertex:
+            rgb = mesh.vertex.colors.numpy().astype(np.float64)
+        found.append(np.clip(rgb, 0.0, 1.0) if rgb is not None and rgb.shape == vertices.shape else None)
+    return found
 
 
 def render_error_map(mesh, reference, path, *, vmax=None, cmap="viridis", title=None, size=(640, 480), view=None,
@@ -159,7 +178,7 @@ def render_error_map(mesh, reference, path, *, vmax=None, cmap="viridis", title=
         panels = _open3d_panels([job], required=backend == "open3d")
         panel = None if panels is None else panels[0]
     if panel is None:
-        small_vertices, small_triangles = _decimate(vertices, triangles, MAX_MATPLOTLIB_FACES)
+        small_vertices, small_triangles, _ = _decimate(vertices, triangles, MAX_MATPLOTLIB_FACES)
         small_distances = distances if small_vertices is vertices else to_reference.unsigned_distance(small_vertices)
         panel = _matplotlib_panel(small_vertices, small_triangles, camera, rgb=colormap(norm(small_distances))[:, :3],
                                   shading=shading, ambient=0.5, split_limit=SPLIT_FRACTION * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))))
