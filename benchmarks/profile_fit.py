@@ -90,19 +90,20 @@ def phase_row(name, mesh, grid, steps):
 
 
 def step_row(name, mesh, grid, steps):
-    """The loop of ``_FitLoop.run``, each part timed (a copy of it, so the fit itself carries no timers)."""
+    """The loop of ``FitLoop.run`` on the torch backend, each part timed (a copy of it, so the fit itself carries no timers)."""
     vertices, triangles = mesh_arrays(mesh)
     frame = fit_frame((vertices, triangles))
     samples, _ = sample_surface((frame.apply(vertices), triangles), fit_module.SAMPLES_PER_FACE * grid**2, seed=0)
-    loop = fit_module._FitLoop(samples, initial_generators(samples, grid), grid=grid, k=11, batch_fraction=0.2,
-                               device=torch.device("cpu"))
+    loop = fit_module._TorchLoop(samples, initial_generators(samples, grid), grid=grid, k=11, batch_fraction=0.2,
+                                 device=torch.device("cpu"))
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     parts = dict.fromkeys(["window", "pairs", "loss_fwd_bwd", "adam_clamp_displacement", "search"], 0.0)
     generators_t = loop.generators_t
-    optimizer = fit_module._Adam(generators_t)
+    with torch.no_grad():
+        optimizer = fit_module.Adam(generators_t)
     offsets = np.random.default_rng(0).integers(loop.n_samples, size=steps).tolist()
-    refresh = fit_module.REFRESH_VOXELS * 2.0 / (grid - 1)
+    refresh = fit_module.REFRESH_VOXELS * fit_module.grid_voxel(grid)
     searches = 0
     try:
         for step in range(steps):
@@ -122,7 +123,7 @@ def step_row(name, mesh, grid, steps):
                 parts["loss_fwd_bwd"] += t3 - t2
             t3 = time.perf_counter()
             with torch.no_grad():
-                optimizer.step(0.005 * 0.5 ** bisect.bisect_right([80, 120, 200, 250], step))
+                optimizer.step(generators_t.grad, 0.005 * 0.5 ** bisect.bisect_right([80, 120, 200, 250], step))
                 generators_t.clamp_(-1.0, 1.0)
                 moved = (generators_t - loop.searched_at).square_().sum(0).amax()
             search = bool(moved > refresh**2) and step + 1 < steps

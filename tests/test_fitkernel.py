@@ -10,6 +10,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from voro3d import _cpufit, _fitkernel
+from voro3d.fitloop import Adam
 from voro3d import fitting as fit_module
 from voro3d.extract import extract_mesh
 from voro3d.generators import initial_generators
@@ -287,7 +288,7 @@ def test_cpu_fit_imports_no_torch():
 def test_numpy_adam_matches_torch_optim():
     start = np.random.default_rng(0).normal(size=(50, 3))
     ours, theirs = start.copy(), torch.tensor(start, requires_grad=True)
-    adam = _cpufit.NumpyAdam(ours)
+    adam = Adam(ours)  # on a numpy array, as the CPU kernel's loop steps it
     reference = torch.optim.Adam([theirs], lr=0.01, foreach=False)
     schedule = torch.optim.lr_scheduler.MultiStepLR(reference, milestones=[3, 6], gamma=0.5)
     for step in range(10):

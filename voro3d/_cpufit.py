@@ -1,20 +1,21 @@
-"""The fit loop on CPU, without torch: each step's VoroLoss and gradient and the kNN searches come
-from the compiled kernel ``voro3d._fitkernel``, Adam is a few numpy operations.
+"""The fit loop's CPU backend, without torch: each step's VoroLoss and gradient and the kNN searches
+come from the compiled kernel ``voro3d._fitkernel``, Adam is a few numpy operations.
 
-:class:`voro3d.fitting._FitLoop` is the same loop in torch (the reference, and the CUDA path); this
+``voro3d.fitting._TorchLoop`` is the same loop in torch (the reference, and the CUDA path); this
 one spares a CPU fit the 2-6 s of importing torch and its per-operation overhead.
 """
 from __future__ import annotations
 
-import bisect
 import os
 import sys
 
 import numpy as np
 
 from . import _fitkernel
+from .fitloop import Adam, FitLoop, spatial_order
+from .geometry import grid_voxel
 
-__all__ = ["KernelLoop", "NumpyAdam", "cpu_threads", "spatial_order"]
+__all__ = ["KernelLoop", "cpu_threads"]
 
 
 def cpu_threads() -> int:
@@ -29,19 +30,9 @@ def cpu_threads() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def spatial_order(samples: np.ndarray, grid: int) -> np.ndarray:
-    """Sample indices sorted by grid voxel: kNN queries in this order find their data in cache
-    (1.5 times faster than the samples' random order with a KD-tree)."""
-    voxel = np.floor((samples + 1.0) * (grid - 1) / 2.0).astype(np.int64)
-    return np.argsort((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2], kind="stable")
-
-
-class KernelLoop:
-    """Samples, generators and their kNN candidates, point-major, for :func:`voro3d.fitting.fit_samples`.
-
-    Batches are windows of consecutive samples at a random offset, with the first window's worth
-    of samples repeated at the end, as in :class:`voro3d.fitting._FitLoop`.
-    """
+class KernelLoop(FitLoop):
+    """Samples, generators and their kNN candidates, point-major, for :func:`voro3d.fitting.fit_samples`;
+    batches as in :mod:`voro3d.fitloop`."""
 
     def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int, batch_fraction: float,
                  threads: int):
@@ -52,7 +43,7 @@ class KernelLoop:
         self.grad = np.zeros_like(self.positions)
         self.k = min(k, generators.shape[0])
         self.threads = threads
-        self.voxel = 2.0 / (grid - 1)
+        self.voxel = grid_voxel(grid)
         # The search runs in spatial order and writes each answer to its sample's row.
         self.search_rows = spatial_order(samples, grid)
         self.search_samples = np.ascontiguousarray(samples[self.search_rows], dtype=np.float32)
@@ -67,23 +58,20 @@ class KernelLoop:
         self.searched_at = self.positions.copy()
         self.searches += 1
 
-    def run(self, steps, *, lr, milestones, gamma, seed, refresh_distance, progress) -> np.ndarray:
-        from tqdm.auto import tqdm
+    def _optimizer(self) -> Adam:
+        return Adam(self.positions)
 
-        optimizer = NumpyAdam(self.positions)
-        offsets = np.random.default_rng(seed).integers(self.n_samples, size=steps)
-        losses = np.empty(steps)
-        # disable=None: a bar on a terminal only; a log would get a line per update.
-        for step in tqdm(range(steps), desc="VoroMesh fit", disable=None if progress else True, leave=False):
-            window = slice(offsets[step], offsets[step] + self.batch)
-            losses[step] = _fitkernel.voroloss(self.samples[window], self.positions, self.candidates[window],
-                                               self.grad, threads=self.threads)
-            optimizer.step(self.grad, lr * gamma ** bisect.bisect_right(milestones, step))
-            np.clip(self.positions, -1.0, 1.0, out=self.positions)
-            moved = np.square(self.positions - self.searched_at).sum(axis=1).max()
-            if moved > refresh_distance**2 and step + 1 < steps:
-                self._search()
-        return losses
+    def _gradient(self, offset: int) -> float:
+        window = slice(offset, offset + self.batch)
+        return _fitkernel.voroloss(self.samples[window], self.positions, self.candidates[window], self.grad,
+                                   threads=self.threads)
+
+    def _descend(self, adam: Adam, lr: float) -> None:
+        adam.step(self.grad, lr)
+        np.clip(self.positions, -1.0, 1.0, out=self.positions)
+
+    def _moved(self):
+        return np.square(self.positions - self.searched_at).sum(axis=1).max()
 
     def loss(self) -> float:
         """VoroLoss over all samples with the current candidates."""
@@ -92,26 +80,3 @@ class KernelLoop:
 
     def generators(self) -> np.ndarray:
         return self.positions.astype(np.float64)
-
-
-class NumpyAdam:
-    """``torch.optim.Adam``'s update with its defaults (betas 0.9 and 0.999, eps 1e-8), in place on
-    a float32 array, in the order of :class:`voro3d.fitting._Adam`."""
-
-    BETA1, BETA2, EPS = 0.9, 0.999, 1e-8
-
-    def __init__(self, parameter: np.ndarray):
-        self.parameter = parameter
-        self.mean = np.zeros_like(parameter)
-        self.square = np.zeros_like(parameter)
-        self.steps = 0
-
-    def step(self, grad: np.ndarray, lr: float) -> None:
-        self.steps += 1
-        self.mean += (1 - self.BETA1) * (grad - self.mean)
-        self.square *= self.BETA2
-        self.square += (1 - self.BETA2) * grad * grad
-        correction1 = 1 - self.BETA1**self.steps
-        correction2 = 1 - self.BETA2**self.steps
-        denominator = np.sqrt(self.square) / correction2**0.5 + self.EPS
-        self.parameter -= (lr / correction1) * self.mean / denominator

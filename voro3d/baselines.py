@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validate import as_sdf_grid
+from .geometry import grid_voxel
 from .io import mesh_arrays
 
 __all__ = ["dual_contouring", "marching_cubes"]
@@ -43,7 +44,7 @@ def marching_cubes(sdf) -> tuple[np.ndarray, np.ndarray]:
     from skimage.measure import marching_cubes as skimage_marching_cubes
 
     sdf = as_sdf_grid(sdf, "sdf", min_size=2)
-    step = 2.0 / (sdf.shape[0] - 1)
+    step = grid_voxel(sdf.shape[0])
     # With scikit-image's default gradient_direction="descent" a negative-inside SDF yields
     # outward triangles (positive volume on a sphere; "ascent" flips them), as the tests check.
     try:

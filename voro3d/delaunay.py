@@ -11,9 +11,9 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+from .geometry import components
 
 __all__ = ["DEFAULT_TOLERANCE", "Triangulation", "bounding_generators", "circumcenters", "delaunay_with_box",
            "triangulate"]
@@ -129,8 +129,7 @@ def triangulate(generators: np.ndarray, *, tolerance: float = DEFAULT_TOLERANCE)
     n = points.shape[0]
     label = np.arange(n)
     if pairs.size:
-        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-        label = connected_components(graph, directed=False)[1]
+        label = components(n, pairs)[1]
     _, first, site = np.unique(label, return_index=True, return_inverse=True)
     if first.size < 4:
         raise ValueError(f"generators must hold at least 4 distinct points, got {first.size}")

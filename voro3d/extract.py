@@ -9,11 +9,9 @@ which :meth:`voro3d.VoroMesh.to_open3d` runs in turn.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-
 from ._validate import as_mask, as_points
 from .delaunay import DEFAULT_TOLERANCE, Triangulation, circumcenters, triangulate
+from .geometry import components
 from .topology import split_nonmanifold
 
 __all__ = ["DEFAULT_TOLERANCE", "extract_mesh", "voronoi_polygons", "voronoi_surface"]
@@ -236,9 +234,7 @@ def _voronoi_vertices(points, tets, cospherical, tet_ids):
     if cospherical.size:
         # All pairs, not only mixed ones: the tetrahedra of one Delaunay polytope may connect
         # through tetrahedra with no surface face.
-        graph = coo_matrix((np.ones(len(cospherical), np.int8), (cospherical[:, 0], cospherical[:, 1])),
-                           shape=(n, n))
-        label = connected_components(graph, directed=False)[1]
+        label = components(n, cospherical)[1]
     # One tetrahedron per vertex (any: they share the circumsphere), found without sorting.
     representative = np.full(n, -1, np.int64)
     representative[label[tet_ids]] = tet_ids

@@ -5,23 +5,24 @@ occupancy of every cell from an inside test -> generators mapped back to the inp
 """
 from __future__ import annotations
 
-import bisect
 import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ._cpufit import KernelLoop, cpu_threads, spatial_order
+from ._cpufit import KernelLoop, cpu_threads
 from ._extras import require
 from ._validate import MESH_AUTO_GRID, as_points, grid_option, positive_int
 from .delaunay import triangulate
-from .generators import initial_generators
+from .fitloop import Adam, FitLoop, spatial_order
 from .frames import fit_frame
+from .generators import initial_generators
+from .geometry import grid_voxel
 from .io import mesh_arrays
 from .occupancy import label_cells
 from .queries import InsideOutside
 from .sampling import sample_surface
-from .voromesh import VoroMesh, grid_voxel
+from .voromesh import VoroMesh
 
 __all__ = ["FitInfo", "MAX_REFRESH_DISTANCE", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples"]
 
@@ -91,7 +92,7 @@ class FitInfo:
 
 def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 200, 250),
         gamma: float = 0.5, batch_fraction: float = 0.2, k: int = DEFAULT_K, n_samples: int | None = None,
-        seed: int = 0, device: str = "cpu", allow_open: bool = False,
+        seed: int = 0, device: str = "cpu", threads: int | None = None, allow_open: bool = False,
         progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to a triangle mesh, and report how the fit went.
 
@@ -129,6 +130,9 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
         Seeds the samples and the batches: the same seed gives bitwise-identical generators on CPU.
     device : str
         ``"cpu"`` or ``"cuda"`` (or ``"cuda:N"``) for the optimisation loop.
+    threads : int, optional
+        Threads of the CPU kernel; default ``torch.get_num_threads()`` when torch is loaded, else
+        ``OMP_NUM_THREADS``, else every CPU the process may use. A seed gives the same bits on any count.
     allow_open : bool
         Accept a mesh with boundary edges; inside is then decided by winding number
         (see :class:`voro3d.queries.InsideOutside`).
@@ -180,13 +184,13 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     sampled = time.perf_counter() - start
     result, info = fit_samples(samples, inside.occupancy, grid, frame=frame, steps=steps, lr=lr, milestones=milestones,
                                gamma=gamma, batch_fraction=batch_fraction, k=k, seed=seed, device=device,
-                               progress=progress)
+                               threads=threads, progress=progress)
     return result, replace(info, sampling_seconds=sampled, total_seconds=info.total_seconds + sampled)
 
 
 def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr: float = 0.005,
                 milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
-                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu",
+                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu", threads: int | None = None,
                 progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit`.
 
@@ -197,7 +201,7 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     inside : callable
         Maps (q, 3) float64 fit-frame points to (q,) bool, True inside the shape (a mesh's
         :class:`voro3d.queries.InsideOutside`, a point cloud's winding number, ...).
-    grid, steps, lr, milestones, gamma, batch_fraction, k, seed, device, progress
+    grid, steps, lr, milestones, gamma, batch_fraction, k, seed, device, threads, progress
         As in :func:`fit`.
     frame : voro3d.frames.NormalizationFrame, optional
         The generators are mapped back through ``frame.invert``; None keeps the fit frame.
@@ -222,30 +226,31 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     samples = as_points(samples, "samples", min_count=4)
     milestones = sorted(positive_int(step, "milestones") for step in milestones)
     device = _device(device)
+    threads = cpu_threads() if threads is None else positive_int(threads, "threads")
 
     generators = initial_generators(samples, grid)
     schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
                     refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE),
                     progress=progress)
     if device == "cpu" and _CPU_KERNEL:
-        loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=cpu_threads())
+        loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads)
         initialised = time.perf_counter()
         losses = loop.run(steps, **schedule)
         final_loss = loop.loss()
     else:
         import torch
 
-        loop = _FitLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
-                        device=torch.device(device))
+        loop = _TorchLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
+                          device=torch.device(device))
         initialised = time.perf_counter()
-        threads = torch.get_num_threads()
+        previous = torch.get_num_threads()
         if device == "cpu":
             torch.set_num_threads(1)
         try:
             losses = loop.run(steps, **schedule)
             final_loss = loop.loss()
         finally:
-            torch.set_num_threads(threads)
+            torch.set_num_threads(previous)
     generators = loop.generators()
     optimised = time.perf_counter()
 
@@ -287,14 +292,9 @@ def _device(device) -> str:
     return str(torch_device)
 
 
-class _FitLoop:
-    """The optimisation state: samples, generators and their kNN candidates, coordinate-major.
-
-    Batches are windows of consecutive samples at a random offset: the samples are i.i.d. on
-    the surface, so a window is a random batch, and it is a slice instead of a gather (which
-    cost more than the loss itself). The first window's worth of samples is repeated at the end
-    so that every offset gives a full window and every sample is equally likely to be used.
-    """
+class _TorchLoop(FitLoop):
+    """The torch backend of :mod:`voro3d.fitloop` (the reference, and the CUDA path): samples,
+    generators and their kNN candidates, coordinate-major."""
 
     def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int,
                  batch_fraction: float, device: torch.device):
@@ -316,7 +316,6 @@ class _FitLoop:
         self._search()
 
     def _search(self):
-        """kNN candidates of every sample at the current generators."""
         import torch
 
         from .loss import nearest_indices
@@ -330,39 +329,43 @@ class _FitLoop:
         self.searched_at = sites.clone()
         self.searches += 1
 
-    def run(self, steps, *, lr, milestones, gamma, seed, refresh_distance, progress) -> np.ndarray:
+    def _optimizer(self) -> Adam:
         import torch
-        from tqdm.auto import tqdm
+
+        with torch.no_grad():
+            return Adam(self.generators_t)
+
+    def _gradient(self, offset: int) -> float:
+        import torch
 
         from .loss import PAIR_BLOCK, bisector_distance, bisector_pairs
 
         generators_t = self.generators_t
-        optimizer = _Adam(generators_t)
-        # The batches of voro3d._cpufit.KernelLoop, so that a seed gives the same ones on CPU and CUDA.
-        offsets = np.random.default_rng(seed).integers(self.n_samples, size=steps).tolist()
-        losses = torch.empty(steps, dtype=torch.float32, device=generators_t.device)
-        # disable=None: a bar on a terminal only; a log would get a line per update.
-        for step in tqdm(range(steps), desc="VoroMesh fit", disable=None if progress else True, leave=False):
-            generators_t.grad = None
-            loss = torch.zeros((), device=generators_t.device)
-            # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at
-            # a time: their temporaries then stay in cache instead of being allocated afresh.
-            for start in range(0, self.batch, PAIR_BLOCK):
-                window = slice(offsets[step] + start, offsets[step] + min(start + PAIR_BLOCK, self.batch))
-                samples_t = self.samples_t[:, window].contiguous()
-                nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
-                block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
-                block_loss.backward()
-                loss += block_loss.detach()
-            rate = lr * gamma ** bisect.bisect_right(milestones, step)
-            with torch.no_grad():
-                optimizer.step(rate)
-                generators_t.clamp_(-1.0, 1.0)
-                losses[step] = loss
-                moved = (generators_t - self.searched_at).square_().sum(0).amax()
-            if moved > refresh_distance**2 and step + 1 < steps:
-                self._search()
-        return losses.cpu().numpy().astype(np.float64)
+        generators_t.grad = None
+        loss = torch.zeros((), device=generators_t.device)
+        # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at a time:
+        # their temporaries then stay in cache instead of being allocated afresh.
+        for start in range(0, self.batch, PAIR_BLOCK):
+            window = slice(offset + start, offset + min(start + PAIR_BLOCK, self.batch))
+            samples_t = self.samples_t[:, window].contiguous()
+            nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
+            block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
+            block_loss.backward()
+            loss += block_loss.detach()
+        return float(loss)
+
+    def _descend(self, adam: Adam, lr: float) -> None:
+        import torch
+
+        with torch.no_grad():
+            adam.step(self.generators_t.grad, lr)
+            self.generators_t.clamp_(-1.0, 1.0)
+
+    def _moved(self):
+        import torch
+
+        with torch.no_grad():
+            return (self.generators_t - self.searched_at).square_().sum(0).amax()
 
     def loss(self) -> float:
         """VoroLoss over all samples with the current candidates."""
@@ -378,34 +381,3 @@ class _FitLoop:
 
     def generators(self) -> np.ndarray:
         return self.generators_t.detach().t().cpu().numpy().astype(np.float64)
-
-
-class _Adam:
-    """``torch.optim.Adam``'s update with its defaults (betas 0.9 and 0.999, eps 1e-8), written out.
-
-    Creating a ``torch.optim`` optimiser imports ``torch._dynamo``, which took 3 to 10 seconds
-    on first use here: longer than a whole fit at grid 32.
-    """
-
-    BETA1, BETA2, EPS = 0.9, 0.999, 1e-8
-
-    def __init__(self, parameter: torch.Tensor):
-        import torch
-
-        self.parameter = parameter
-        self.mean = torch.zeros_like(parameter)
-        self.square = torch.zeros_like(parameter)
-        self.steps = 0
-
-    def step(self, lr: float) -> None:
-        import torch
-
-        self.steps += 1
-        with torch.no_grad():
-            grad = self.parameter.grad
-            self.mean.lerp_(grad, 1 - self.BETA1)
-            self.square.mul_(self.BETA2).addcmul_(grad, grad, value=1 - self.BETA2)
-            correction1 = 1 - self.BETA1**self.steps
-            correction2 = 1 - self.BETA2**self.steps
-            denominator = (self.square.sqrt() / correction2**0.5).add_(self.EPS)
-            self.parameter.addcdiv_(self.mean, denominator, value=-lr / correction1)

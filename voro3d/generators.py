@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validate import as_points, positive_int
+from .geometry import grid_voxel
 from .sampling import grid_nodes
 
 __all__ = ["grid_nodes", "initial_generators"]
@@ -40,7 +41,7 @@ def initial_generators(samples, grid: int) -> np.ndarray:
     """
     points = as_points(samples, "samples")
     grid = positive_int(grid, "grid", minimum=2)
-    h = 2.0 / (grid - 1)
+    h = grid_voxel(grid)
     voxel = np.clip(np.floor((points + 1.0) / h).astype(np.int64), 0, grid - 2)
     voxel = np.unique((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2])
     # A voxel's lowest corner has the voxel's own index; the others add C-order node strides.

@@ -1,9 +1,36 @@
-"""Mesh geometry shared by the stages: face and vertex normals, triangle angles."""
+"""Geometry shared by the stages: face and vertex normals, triangle angles, graph components,
+Open3D's raycasting scene, the voxel of a grid."""
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["face_area_vectors", "face_normals", "smallest_angles", "vertex_normals"]
+__all__ = ["components", "face_area_vectors", "face_normals", "grid_voxel", "raycasting_scene", "smallest_angles",
+           "vertex_normals"]
+
+
+def grid_voxel(grid: int) -> float:
+    """The voxel of a ``grid^3`` grid of nodes spanning ``[-1, 1]^3`` (``2 / (grid - 1)``), in those units."""
+    return 2.0 / (grid - 1)
+
+
+def components(n_nodes: int, edges: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of the graph on ``n_nodes`` nodes with ``edges`` ((e, 2) int): (count, (n_nodes,) label)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = np.asarray(edges).reshape(-1, 2)
+    # bool: repeated edges (one per tetrahedron around a Delaunay edge) OR together, where int8 would wrap.
+    graph = coo_matrix((np.ones(len(edges), bool), (edges[:, 0], edges[:, 1])), shape=(n_nodes, n_nodes))
+    return connected_components(graph, directed=False)
+
+
+def raycasting_scene(vertices: np.ndarray, triangles: np.ndarray):
+    """Open3D's ``RaycastingScene`` over one triangle mesh (float32, as Open3D computes)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(triangles, np.uint32)))
+    return scene
 
 
 def face_area_vectors(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import as_sdf_grid
+from .geometry import grid_voxel
 from .voromesh import VoroMesh
 
 __all__ = ["BAND", "BAND_INPUTS", "CONTEXT", "DEFAULT_MODEL", "NEAR", "OUTPUT_NAMES", "NetworkInput", "Predictor",
@@ -97,7 +98,7 @@ def check_sdf(sdf) -> np.ndarray:
 
 def _near_nodes(sdf: np.ndarray, near: float) -> tuple[np.ndarray, np.ndarray, float]:
     """The SDF in voxels, the ``(n, 3)`` int64 nodes with ``|sdf| < near`` voxels (C order), the voxel size."""
-    step = 2.0 / (sdf.shape[0] - 1)
+    step = grid_voxel(sdf.shape[0])
     voxels = sdf / np.float32(step)
     ijk = np.argwhere(np.abs(voxels) < near)
     if ijk.shape[0] == 0:
@@ -195,7 +196,7 @@ def fixed_generators(sdf: np.ndarray, *, near: float, band: float) -> tuple[np.n
     points : (k, 3) float64
     inside : (k,) bool
     """
-    step = 2.0 / (sdf.shape[0] - 1)
+    step = grid_voxel(sdf.shape[0])
     voxels = np.abs(sdf) / step
     ijk = np.argwhere((voxels >= near) & (voxels < band))
     return -1.0 + step * ijk, sdf[tuple(ijk.T)] < 0

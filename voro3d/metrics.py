@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._validate import positive_int
-from .geometry import smallest_angles
 from .frames import ndc_frame
+from .geometry import face_area_vectors, raycasting_scene, smallest_angles
 from .io import mesh_arrays
 from .sampling import sample_surface
 
@@ -125,13 +125,11 @@ def triangle_quality(pred, gt, *, max_angle: float = 30.0, sliver_angle: float =
     if not 0 < sliver_angle <= 60:
         raise ValueError(f"sliver_angle must be in (0, 60] degrees, got {sliver_angle}")
     corners = vertices[triangles]
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals = face_area_vectors(vertices, triangles)
     length = np.linalg.norm(normals, axis=1)
-    gt_normals = np.cross(gt_vertices[gt_triangles[:, 1]] - gt_vertices[gt_triangles[:, 0]],
-                          gt_vertices[gt_triangles[:, 2]] - gt_vertices[gt_triangles[:, 0]])
+    gt_normals = face_area_vectors(gt_vertices, gt_triangles)
     gt_normals /= np.maximum(np.linalg.norm(gt_normals, axis=1, keepdims=True), 1e-300)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(gt_vertices.astype(np.float32)), o3d.core.Tensor(gt_triangles.astype(np.uint32)))
+    scene = raycasting_scene(gt_vertices, gt_triangles)
     nearest = scene.compute_closest_points(o3d.core.Tensor(corners.mean(axis=1).astype(np.float32)))
     truth = gt_normals[nearest["primitive_ids"].numpy().astype(np.int64)]
     cosine = np.abs(np.einsum("ij,ij->i", normals, truth)) / np.maximum(length, 1e-300)

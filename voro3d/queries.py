@@ -8,6 +8,7 @@ import numpy as np
 
 from ._system import available_cpus
 from ._validate import as_points, positive_int
+from .geometry import raycasting_scene
 from .io import mesh_arrays
 from .sampling import grid_nodes
 from .topology import open_edge_count
@@ -173,9 +174,7 @@ class InsideOutside:
                 f"mesh has {bad_edges} edges not shared by exactly two triangles (open boundary or "
                 "non-manifold edges): inside/outside is undefined; pass allow_open=True to decide it by "
                 "generalized winding number, or reconstruct its vertices as a point cloud")
-        self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
-                                  o3d.core.Tensor(self.triangles.astype(np.uint32)))
+        self._scene = raycasting_scene(self.vertices, self.triangles)
 
     @staticmethod
     def _tensor(points):

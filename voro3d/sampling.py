@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validate import positive_int
+from .geometry import face_area_vectors
 from .io import mesh_arrays
 
 __all__ = ["sample_surface", "grid_nodes"]
@@ -38,7 +39,7 @@ def sample_surface(mesh, n_samples: int, *, seed: int = 0) -> tuple[np.ndarray, 
     vertices, triangles = mesh_arrays(mesh)
     n = positive_int(n_samples, "n_samples")
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
-    cross = np.cross(b - a, c - a)
+    cross = face_area_vectors(vertices, triangles)
     double_area = np.linalg.norm(cross, axis=1)
     cdf = np.cumsum(double_area)
     if not cdf[-1] > 0:

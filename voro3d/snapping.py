@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .geometry import smallest_angles, vertex_normals
+from .geometry import face_area_vectors as _normals, raycasting_scene, smallest_angles, vertex_normals
 from .io import mesh_arrays
 from .watertight import self_intersections, signed_volume
 
@@ -95,11 +95,6 @@ class SnapInfo:
         return asdict(self)
 
 
-def _normals(vertices, triangles):
-    corners = vertices[triangles]
-    return np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-
-
 def _graph_stars(vertices, triangles):
     """(n,) bool: the vertices whose star is a graph over its mean (area-weighted) normal."""
     normals = _normals(vertices, triangles)
@@ -130,9 +125,7 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float):
     import open3d as o3d
     from scipy.sparse import coo_matrix
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(surface[0], np.float32)),
-                        o3d.core.Tensor(np.asarray(surface[1], np.uint32)))
+    scene = raycasting_scene(*surface)
     planes = _normals(*surface)
     planes /= np.maximum(np.linalg.norm(planes, axis=1), 1e-300)[:, None]
     n = len(vertices)

@@ -6,8 +6,8 @@ A triangle ``f`` owns half-edges ``3 f + c`` running from ``triangles[f, c]`` to
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+
+from .geometry import components
 
 __all__ = ["half_edges", "edge_groups", "edge_counts", "open_edge_count", "twins", "umbrellas", "split_nonmanifold"]
 
@@ -166,8 +166,7 @@ def umbrellas(triangles: np.ndarray, twin: np.ndarray) -> tuple[int, np.ndarray]
     # Corner (f, c) leaves its vertex along half-edge 3f+c; the twin ends at that vertex, whose
     # corner in the twin's triangle is the next one.
     neighbour = 3 * (there // 3) + (there % 3 + 1) % 3
-    graph = coo_matrix((np.ones(here.size, np.int8), (here, neighbour)), shape=(n, n))
-    return connected_components(graph, directed=False)
+    return components(n, np.stack([here, neighbour], axis=1))
 
 
 def split_nonmanifold(vertices: np.ndarray, triangles: np.ndarray, *, max_rounds: int = 4):

@@ -15,14 +15,9 @@ import numpy as np
 from ._validate import as_mask, as_points
 from .delaunay import DEFAULT_TOLERANCE, Triangulation, triangulate
 from .frames import NormalizationFrame
+from .geometry import grid_voxel
 
-__all__ = ["VoroMesh", "grid_voxel"]
-
-
-def grid_voxel(grid: int) -> float:
-    """The voxel of a ``grid^3`` grid over ``[-1, 1]^3`` (``2 / (grid - 1)``), in those units."""
-    return 2.0 / (grid - 1)
-
+__all__ = ["VoroMesh"]
 
 @dataclass
 class VoroMesh:

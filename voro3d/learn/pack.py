@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import positive_int
+from ..geometry import grid_voxel
 from ..io import atomic_path
 
 __all__ = ["SAMPLE_BITS", "SDF_LEVELS", "pack_dataset", "pack_shape", "unpack_dataset", "unpack_shape"]
@@ -68,7 +69,7 @@ def pack_shape(record: dict, *, n_samples: int, clip: float = 3.25, seed: int = 
     packed = {"clip": np.float64(clip)}
     for name in sorted(k for k in record if k.startswith("sdf_")):
         sdf = record[name]
-        step = 2.0 / (sdf.shape[0] - 1)
+        step = grid_voxel(sdf.shape[0])
         levels = np.round(np.clip(sdf / step, -clip, clip) * SDF_LEVELS).astype(np.int16)
         packed[name] = _compress(np.diff(levels, axis=2, prepend=0).astype(np.int16))
     samples = record["samples"]
@@ -88,7 +89,7 @@ def unpack_shape(packed: dict) -> dict:
     for name in (k for k in packed if k.startswith("sdf_")):
         g = int(name[4:])
         levels = np.cumsum(_decompress(packed[name], np.int16, (g, g, g)), axis=2, dtype=np.int32)
-        record[name] = (np.clip(levels / SDF_LEVELS, -clip, clip) * (2.0 / (g - 1))).astype(np.float32)
+        record[name] = (np.clip(levels / SDF_LEVELS, -clip, clip) * grid_voxel(g)).astype(np.float32)
     n = int(packed["n_samples"])
     quantised = np.cumsum(_decompress(packed["samples"], np.int16, (3, n)).T, axis=0, dtype=np.int32)
     record["samples"] = (quantised / _SAMPLE_SCALE - 1.0).astype(np.float32)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import face_area_vectors
+
 __all__ = ["bilateral_filter"]
 
 # Faces that enter one normal's average: the spatial Gaussian is cut off there.
@@ -26,7 +28,7 @@ VERTEX_PASSES = 10
 def _face_frames(vertices, triangles):
     """Centroids (t, 3), unit normals (t, 3) and areas (t,) of the triangles."""
     corners = vertices[triangles]
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals = face_area_vectors(vertices, triangles)
     length = np.linalg.norm(normals, axis=1)
     return corners.mean(axis=1), normals / np.maximum(length, 1e-300)[:, None], length / 2
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..queries import point_areas
 from ..snapping import NOISY_SMOOTHING
-from ..voromesh import grid_voxel
+from ..geometry import grid_voxel
 from .normals import estimate_normals, orient_normals, sign_disagreement
 from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
                          outlier_mask)
@@ -384,7 +384,7 @@ def _sheet_if_closer(target, points, spacing: float, resolution: int):
     strays = _surface_to_points(target, tree)
     if strays <= SHEET_SURFACE_GATE * spacing:
         return None
-    offset = max(2.0 / (resolution - 1), SHEET_OFFSET * spacing)
+    offset = max(grid_voxel(resolution), SHEET_OFFSET * spacing)
     sheet = sheet_surface(points, offset, resolution)
     return sheet if _misfit(sheet, points, tree) < SHEET_WIN * (to_target + strays) else None
 
@@ -412,8 +412,7 @@ def _drop_stray_cells(shape):
     turned inside. Flipping whole cells keeps the surface closed: it is extracted again from the
     labels.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from ..geometry import components
 
     if shape.occupancy.sum() < 2:
         return shape
@@ -423,8 +422,7 @@ def _drop_stray_cells(shape):
     tets = triangulation.tets
     edges = tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
     same = edges[inside[edges[:, 0]] == inside[edges[:, 1]]]
-    groups, group = connected_components(coo_matrix((np.ones(len(same)), (same[:, 0], same[:, 1])),
-                                                    shape=(n + 8, n + 8)), directed=False)
+    groups, group = components(n + 8, same)
     size = np.bincount(group, minlength=groups)
     kind = np.zeros(groups, bool)
     kind[group[inside]] = True

@@ -58,9 +58,9 @@ class _GridSurface:
         """(q, 3) fit-frame points -> (q,) float64 distance to the mesh (Open3D, float32)."""
         import open3d as o3d
 
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(self.vertices.astype(np.float32)),
-                            o3d.core.Tensor(self.triangles.astype(np.uint32)))
+        from ..geometry import raycasting_scene
+
+        scene = raycasting_scene(self.vertices, self.triangles)
         return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
 
 

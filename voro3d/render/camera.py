@@ -192,10 +192,6 @@ def _fit_points(arrays) -> np.ndarray:
 # -- shading helpers
 
 
-def _triangle_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted (unnormalised) normals ``(t, 3)``."""
-    a, b, c = (vertices[triangles[:, i]] for i in range(3))
-    return np.cross(b - a, c - a)
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:

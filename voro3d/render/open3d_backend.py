@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..geometry import vertex_normals
-from .camera import BACKENDS, _Camera, _choice, _fit_camera, _light_directions, _srgb_to_linear, _triangle_normals, _unit
+from ..geometry import face_area_vectors as _triangle_normals, vertex_normals
+from .camera import BACKENDS, _Camera, _choice, _fit_camera, _light_directions, _srgb_to_linear, _unit
 from .open3d_child import DONE
 
 __all__ = ["OPEN3D_TIMEOUT", "Open3DStatus", "PROBE_TIMEOUT", "open3d_status"]

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..geometry import vertex_normals
+from ..geometry import face_area_vectors as _triangle_normals, vertex_normals
 from ..io import atomic_path, to_triangle_mesh
-from .camera import MAX_MATPLOTLIB_FACES, SUPERSAMPLE, TITLE_BAND, _Camera, _lambert, _triangle_normals, _unit
+from .camera import MAX_MATPLOTLIB_FACES, SUPERSAMPLE, TITLE_BAND, _Camera, _lambert, _unit
 
 __all__: list[str] = []
 

@@ -1,0 +1,35 @@
+"""Shared geometry helpers: normals, angles, components, the raycasting scene, the grid voxel."""
+import numpy as np
+import pytest
+
+from voro3d.geometry import (components, face_area_vectors, face_normals, grid_voxel, raycasting_scene,
+                             smallest_angles, vertex_normals)
+
+TRIANGLE = (np.array([[0.0, 0, 0], [2, 0, 0], [0, 1, 0], [5, 5, 5]]), np.array([[0, 1, 2], [3, 3, 3]]))
+
+
+def test_face_normals_and_areas():
+    area = face_area_vectors(*TRIANGLE)
+    np.testing.assert_array_equal(area, [[0, 0, 2], [0, 0, 0]])  # twice the area along +z; a point has none
+    np.testing.assert_array_equal(face_normals(*TRIANGLE), [[0, 0, 1], [0, 0, 0]])
+    np.testing.assert_allclose(vertex_normals(*TRIANGLE), [[0, 0, 1]] * 3 + [[0, 0, 0]])
+    np.testing.assert_allclose(smallest_angles(*TRIANGLE)[0], np.degrees(np.arctan(0.5)))
+
+
+def test_grid_voxel():
+    assert grid_voxel(3) == 1.0 and grid_voxel(33) == pytest.approx(2 / 32)
+
+
+def test_components_with_repeated_edges():
+    """An edge repeated 300 times (one per tetrahedron around it) still joins its ends."""
+    edges = np.array([[0, 1]] * 300 + [[2, 3]])
+    count, label = components(5, edges)
+    assert count == 3 and label[0] == label[1] and label[2] == label[3] and len(set(label.tolist())) == 3
+
+
+def test_raycasting_scene_distance():
+    scene = raycasting_scene(*TRIANGLE)
+    import open3d as o3d
+
+    distance = scene.compute_distance(o3d.core.Tensor(np.array([[0.5, 0.25, 3.0]], np.float32))).numpy()
+    assert distance[0] == pytest.approx(3.0)
