@@ -14,7 +14,7 @@ from voro3d.batch import (EXIT_INTERRUPTED, EXIT_OK, EXIT_SOME_FAILED, RESULTS_N
                           process_shape, run_batch)
 from voro3d.batch.local import _cpu_slots
 from voro3d.batch.plan import _complete, _ResultsLog
-from voro3d.batch.worker import _predictor
+from voro3d.infer import _cached_predictor as _predictor
 from voro3d.infer import DEFAULT_MODEL
 from voro3d.io import load_mesh, mesh_arrays, save_mesh
 from voro3d.shapes import example_mesh

@@ -272,3 +272,15 @@ def test_allow_open_is_for_meshes():
     points, _ = sample_surface(example_mesh(), 2000, seed=0)
     with pytest.raises(ValueError, match="allow_open applies to meshes only"):
         reconstruct(points, 16, allow_open=True)
+
+
+def test_model_and_threads_reach_the_method():
+    from voro3d.infer import DEFAULT_MODEL, _cached_predictor
+
+    with pytest.raises(ValueError, match="takes no model"):
+        reconstruct(example_mesh(), 16, model=DEFAULT_MODEL)
+    _cached_predictor.cache_clear()
+    mesh = reconstruct(example_mesh("sphere"), 32, method="learned", model=DEFAULT_MODEL, threads=1)
+    assert check_watertight(mesh, self_intersection=False).watertight
+    assert _cached_predictor.cache_info().currsize == 1
+    assert len(reconstruct(example_mesh(), 12, steps=5, threads=1).triangles) > 0

@@ -354,24 +354,26 @@ class Predictor:
 
 
 @functools.lru_cache(maxsize=4)
-def _cached_predictor(path: Path) -> Predictor:
-    return Predictor(path)
+def _cached_predictor(path: Path, threads: int | None) -> Predictor:
+    return Predictor(path, threads=threads)
 
 
-def _predictor(model) -> Predictor:
+def _predictor(model, threads: int | None = None) -> Predictor:
     if isinstance(model, Predictor):
         return model
-    return _cached_predictor(Path(DEFAULT_MODEL if model is None else model).resolve())
+    return _cached_predictor(Path(DEFAULT_MODEL if model is None else model).resolve(), threads)
 
 
-def predict(sdf, *, model=None, fallback: bool = True) -> VoroMesh:
+def predict(sdf, *, model=None, threads: int | None = None, fallback: bool = True) -> VoroMesh:
     """:meth:`Predictor.predict` with ``model`` (a :class:`Predictor`, a path, or None for the shipped one).
 
-    Sessions built from paths are cached, so repeated calls load the model once.
+    Sessions built from paths are cached per thread count (``threads``: onnxruntime's intra-op
+    threads, default all cores), so repeated calls load the model once.
     """
-    return _predictor(model).predict(sdf, fallback=fallback)
+    return _predictor(model, threads).predict(sdf, fallback=fallback)
 
 
-def predict_from_mesh(mesh, grid=32, *, model=None, fallback: bool = True, allow_open: bool = False) -> VoroMesh:
-    """:meth:`Predictor.predict_from_mesh` with ``model`` as in :func:`predict`."""
-    return _predictor(model).predict_from_mesh(mesh, grid, fallback=fallback, allow_open=allow_open)
+def predict_from_mesh(mesh, grid=32, *, model=None, threads: int | None = None, fallback: bool = True,
+                      allow_open: bool = False) -> VoroMesh:
+    """:meth:`Predictor.predict_from_mesh` with ``model`` and ``threads`` as in :func:`predict`."""
+    return _predictor(model, threads).predict_from_mesh(mesh, grid, fallback=fallback, allow_open=allow_open)

@@ -11,15 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import MESH_AUTO_GRID, as_points, grid_option, method_options
+from ._validate import MESH_AUTO_GRID, as_points, grid_option, method_options, positive_int
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
 from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
 def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                device: str | None = None, denoise=None, allow_open: bool = False, clean: bool = True,
-                progress: bool = False):
+                device: str | None = None, model=None, threads: int | None = None, denoise=None,
+                allow_open: bool = False, clean: bool = True, progress: bool = False):
     """Watertight VoroMesh surface of a point cloud or mesh.
 
     Parameters
@@ -47,6 +47,10 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         The fit's Adam steps, seed and torch device (defaults 400 steps for a mesh, 200 for a
         cloud, whose mesh is fitted to its target afterwards (``pointcloud.tuning.CLOUD_STEPS``),
         seed 0, ``"cpu"``). ``method="learned"`` uses none of them and refuses them.
+    model : str or os.PathLike, optional
+        ``method="learned"``: an ONNX model of ``voro3d export-onnx``; default the shipped one.
+    threads : int, optional
+        Threads of the fit's CPU kernel or of onnxruntime; default every CPU the process may use.
     denoise : bool or None
         Point clouds: the smoothing pass that moves noisy points onto the smooth surface. None
         (default) turns it on when the estimated fine-scale noise exceeds 0.13 point spacings,
@@ -81,7 +85,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
+    options = method_options(method, "fit", steps=steps, seed=seed, device=device)
+    options.update(method_options(method, "learned", model=model), threads=threads)
     grid = grid_option(grid)
     kind, data = _read(geometry)
     if kind == "mesh":
@@ -91,11 +96,11 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         if method == "fit":
             from .fitting import fit
 
-            shape = fit(data, grid, allow_open=allow_open, progress=progress, **fit_options)[0]
+            shape = fit(data, grid, allow_open=allow_open, progress=progress, **options)[0]
         else:
             from .infer import predict_from_mesh
 
-            shape = predict_from_mesh(data, grid, allow_open=allow_open)
+            shape = predict_from_mesh(data, grid, allow_open=allow_open, **options)
         return shape.to_open3d(clean=clean, surface=data if clean else None)
     if allow_open:
         raise ValueError("allow_open applies to meshes only; a point cloud may be open as it is")
@@ -114,7 +119,7 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
             report_phase(progress, "object", f"{number + 1} of {len(groups)} far apart: {len(group):,} points")
         shape, target, info = reconstruct_points(points[group], None if normals is None else normals[group],
                                                  grid=grid, method=method, denoise=denoise, progress=progress,
-                                                 **fit_options)
+                                                 **options)
         piece = cloud_mesh(shape, target, clean=clean, progress=progress)
         _check_fit(piece, points[group], info.voxel)
         if colors is not None:
@@ -136,14 +141,17 @@ class VoroMeshStage:
     """
 
     def __init__(self, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                 device: str | None = None, denoise=None, allow_open: bool = False, clean: bool = True,
-                 progress: bool = False):
+                 device: str | None = None, model=None, threads: int | None = None, denoise=None,
+                 allow_open: bool = False, clean: bool = True, progress: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-        fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
+        options = method_options(method, "fit", steps=steps, seed=seed, device=device)
+        options.update(method_options(method, "learned", model=model))
+        if threads is not None:
+            options["threads"] = positive_int(threads, "threads")
         grid = grid_option(grid)
         self.options = dict(grid=grid, method=method, denoise=None if denoise is None else bool(denoise),
-                            allow_open=bool(allow_open), clean=bool(clean), progress=progress, **fit_options)
+                            allow_open=bool(allow_open), clean=bool(clean), progress=progress, **options)
 
     def __call__(self, geometry):
         return reconstruct(geometry, **self.options)

@@ -52,7 +52,7 @@ def process_shape(task: ShapeTask) -> dict:
         with _memory_cap(task.memory_limit_mb):
             source = load_mesh(task.source)
             mesh = _reconstruct(source, task.method, grid=task.grid, steps=task.steps, seed=task.seed,
-                                model=task.model, threads=task.threads).to_open3d(clean=task.clean, surface=source if task.clean else None)
+                                model=task.model, threads=task.threads, clean=task.clean)
             report = check_watertight(mesh, self_intersection=False).as_dict()
             result.update(n_vertices=report["n_vertices"], n_faces=report["n_triangles"], watertight=report)
             if not report["watertight"]:
@@ -79,15 +79,6 @@ def process_shape(task: ShapeTask) -> dict:
 def _cpu_seconds() -> float:
     """CPU time of this process, all its threads, user and system (portable, unlike ``resource``)."""
     return time.process_time()
-
-
-@functools.lru_cache(maxsize=None)
-def _predictor(model: str, threads: int):
-    """One ONNX session per worker process; voro3d.infer's own cache has no thread count, and
-    every worker taking all cores would oversubscribe them."""
-    from ..infer import Predictor
-
-    return Predictor(model, threads=threads)
 
 
 @functools.lru_cache(maxsize=None)
@@ -120,15 +111,17 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
     evaluate(cell, box, n_samples=64)
 
 
-def _reconstruct(source, method: str, *, grid: int, steps: int | None, seed: int, model: str | None, threads: int):
-    """The VoroMesh of ``source`` by ``method``."""
-    if method == "fit":
-        from ..fitting import fit
+def _reconstruct(source, method: str, *, grid: int, steps: int | None, seed: int, model: str | None, threads: int,
+                 clean: bool = True):
+    """The watertight mesh of ``source`` by ``method``: :func:`voro3d.reconstruct`, as a single shape gets it.
 
-        # The fit kernel runs on OMP_NUM_THREADS threads (voro3d._cpufit.cpu_threads), which both
-        # engines set to ``threads``: a local worker before its first import, Ray to the task's CPUs.
-        return fit(source, grid, steps=steps, seed=seed)[0]
-    return _predictor(model, threads).predict_from_mesh(source, grid)
+    The fit kernel and onnxruntime run on ``threads`` threads (the engines also set OMP_NUM_THREADS
+    to it: a local worker before its first import, Ray to the task's CPUs).
+    """
+    from ..reconstruction import reconstruct
+
+    options = dict(steps=steps, seed=seed) if method == "fit" else dict(model=model)
+    return reconstruct(source, grid, method=method, threads=threads, clean=clean, **options)
 
 
 def _proc_status_kb(field: str, pid="self") -> int | None:

@@ -130,7 +130,8 @@ def auto_grid(spacing: float) -> int:
 
 
 def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit", steps: int | None = None,
-                       seed: int | None = None, device: str | None = None, denoise=None, progress: bool = False):
+                       seed: int | None = None, device: str | None = None, model=None, threads: int | None = None,
+                       denoise=None, progress: bool = False):
     """VoroMesh of a point cloud, through a smooth target surface.
 
     1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), outliers
@@ -163,6 +164,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     steps, seed, device : int, int, str, optional
         As in :func:`voro3d.fit` (defaults ``CLOUD_STEPS`` = 200, 0, ``"cpu"``: a cloud's mesh is
         fitted to its target afterwards); refused with ``method="learned"``, which uses none of them.
+    model, threads
+        As in :func:`voro3d.reconstruct`.
     progress : bool
         As in :func:`voro3d.fit`, and one line on stderr per phase (clean, normals, target, fit)
         with what it chose and its time.
@@ -193,6 +196,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
+    model = method_options(method, "learned", model=model).get("model")
     if method == "fit":
         fit_options.setdefault("steps", CLOUD_STEPS)
 
@@ -291,7 +295,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
 
     start = time.perf_counter()
     if method == "learned":
-        shape = _predict(target, grid, frame)
+        shape = _predict(target, grid, frame, model=model, threads=threads)
         seconds["samples"], seconds["fit"] = 0.0, time.perf_counter() - start
     else:
         from ..fitting import fit_samples
@@ -299,7 +303,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         samples = _fit_samples(target, surface_vertices, framed, grid, seed=fit_options.get("seed", 0))
         seconds["samples"] = time.perf_counter() - start
         start = time.perf_counter()
-        shape, _ = fit_samples(samples, target.inside, grid, frame=frame, progress=progress, **fit_options)
+        shape, _ = fit_samples(samples, target.inside, grid, frame=frame, threads=threads, progress=progress,
+                               **fit_options)
         shape = _drop_stray_cells(shape)
         seconds["fit"] = time.perf_counter() - start
     report_phase(progress, "fit", f"{method}, {len(shape.generators):,} generators", seconds["fit"])
@@ -459,7 +464,7 @@ def _choose_grid(grid, spacing: float) -> int:
     return grid
 
 
-def _predict(target, grid: int, frame):
+def _predict(target, grid: int, frame, *, model, threads):
     """The learned model on the target's signed distance at the ``grid^3`` nodes."""
     from ..infer import predict
     from ..sampling import grid_nodes
@@ -468,7 +473,7 @@ def _predict(target, grid: int, frame):
     nodes = grid_nodes(grid)
     distance = target.distance(nodes)
     sdf = np.where(target.inside(nodes), -distance, distance).reshape(grid, grid, grid).astype(np.float32)
-    shape = predict(sdf)
+    shape = predict(sdf, model=model, threads=threads)
     return VoroMesh(frame.invert(shape.generators), shape.occupancy, grid=grid, frame=frame)
 
 
