@@ -12,7 +12,8 @@ setup(
         Pybind11Extension(
             "voro3d._cgal",
             ["src/voro3d_cgal.cpp", "src/voro3d_clean.cpp"],
-            depends=["src/voro3d_checks.h"],
+            depends=["src/voro3d_checks.h", "src/clean/types.h", "src/clean/state.h", "src/clean/bounds.h",
+                     "src/clean/rules.h"],
             cxx_std=17,
             define_macros=[("NDEBUG", None), ("CGAL_DISABLE_ROUNDING_MATH_CHECK", None)],
             extra_compile_args=["-O3", "-pthread"],

@@ -338,3 +338,18 @@ def test_replay_checks_its_arguments():
         _cgal.replay_clean(*random_surface(0, "ball"), np.zeros(len(random_surface(0, "ball")[0]), bool), log)
     with pytest.raises(ValueError, match="frozen must have shape"):
         _cgal.replay_clean(vertices, triangles, np.zeros(3, bool), log)
+
+
+@pytest.mark.parametrize("name", ["bracket", "knot", "blob"])
+def test_collapse_rules_decide_as_cgal_edge_collapse(name):
+    """src/clean/rules.h rewrites CGAL's collapse tests (link condition, topological and geometric
+    validity); run CGAL's own edge_collapse with the clean's placement and, at every edge it takes up,
+    ask ours too: the same answer on every edge."""
+    from voro3d.fitting import fit
+    from voro3d.shapes import example_mesh
+
+    shape, _ = fit(example_mesh(name), 24, steps=50)
+    decisions = _cgal.collapse_decisions(*voronoi_surface(shape.generators, shape.occupancy), 0.5)
+    ours, cgal = decisions[:, 0], decisions[:, 1]
+    assert len(decisions) > 1000 and 0 < cgal.sum() < len(cgal)  # both answers occur
+    np.testing.assert_array_equal(ours, cgal)

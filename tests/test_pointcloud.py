@@ -115,6 +115,12 @@ def test_a_thin_plate_is_a_surface():
     plate = np.c_[rng.uniform(-1, 1, (6000, 2)), rng.choice([0.0, 0.02], 6000)]  # two sheets 0.02 apart
     out = reconstruct(plate, grid=32, steps=100)
     assert check_watertight(out).watertight
+    # A thin slab through both sheets, not a ballooned blob: the points lie on it, its height is the plate's.
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(out))
+    distance = scene.compute_distance(o3d.core.Tensor(plate.astype(np.float32))).numpy()
+    voxel = np.linalg.norm(np.ptp(plate, axis=0)) / 31
+    assert np.median(distance) < 0.5 * voxel and np.ptp(np.asarray(out.vertices)[:, 2]) < 2 * voxel
 
 
 def test_repair_normals_fills_a_few_and_refuses_many(sphere_cloud):
@@ -210,15 +216,12 @@ def test_same_seed_same_mesh(sphere_cloud):
     assert np.array_equal(first, second)
 
 
-def test_real_scans_reconstruct_or_fail_clearly(scans):
+def test_real_scans_reconstruct(scans):
+    """Every dev scan reconstructs (all four did when this was written) and its surface follows the points."""
     for path, fmt in (("hippo2.ply", "auto"), ("point_set_3.xyz", "xyzn"), ("poste_france.xyz", "xyz"),
                       ("radar.xyz", "xyz")):
         cloud = o3d.io.read_point_cloud(str(scans / path), format=fmt)
-        try:
-            out = reconstruct(cloud, grid=32, steps=100)
-        except ValueError as error:
-            assert "\n" not in str(error)
-            continue
+        out = reconstruct(cloud, grid=32, steps=100)
         assert check_watertight(out).watertight, path
         # The surface passes through the scan: the median point lies within a voxel of it.
         scene = o3d.t.geometry.RaycastingScene()
@@ -363,3 +366,7 @@ def test_walls_thinner_than_the_spacing_get_the_sheet_target():
     # The shell is an offset of about a spacing: its distance to the cup stays small, and the
     # cup's hollow stays open (the point under the lid's middle is outside).
     assert evaluate(out, (vertices, triangles), n_samples=20000)["chamfer_x1e5"] < 60
+    from voro3d.queries import InsideOutside
+
+    under_the_lid = np.array([[0.0, 0.0, 0.2]])  # the lid spans z 0.37-0.4, the hollow below it
+    assert not InsideOutside(out).occupancy(under_the_lid).any()

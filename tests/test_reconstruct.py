@@ -50,6 +50,7 @@ def test_other_inputs(torus_cloud, form, tmp_path):
         o3d.io.write_point_cloud(str(geometry), _cloud(points, normals))
     out = reconstruct(geometry, **FAST)
     assert check_watertight(out, self_intersection=False).watertight
+    assert evaluate(out, mesh, n_samples=20000)["chamfer_x1e5"] < 20  # the torus, whatever form it came in
 
 
 def test_mesh_input_and_stage(torus_cloud):
@@ -284,3 +285,47 @@ def test_model_and_threads_reach_the_method():
     assert check_watertight(mesh, self_intersection=False).watertight
     assert _cached_predictor.cache_info().currsize == 1
     assert len(reconstruct(example_mesh(), 12, steps=5, threads=1).triangles) > 0
+
+
+@pytest.fixture
+def full_checks(monkeypatch):
+    """How many times each array check ran in full (outside ``_validate.trusted``) since set up."""
+    import sys
+
+    from voro3d import _validate, io
+
+    counts = {"as_points": 0, "as_mask": 0, "mesh_arrays": 0}
+    originals = {"as_points": _validate.as_points, "as_mask": _validate.as_mask, "mesh_arrays": io.mesh_arrays}
+    for name, original in originals.items():
+        def counted(*args, _original=original, _name=name, **kwargs):
+            counts[_name] += not _validate.is_trusted()
+            return _original(*args, **kwargs)
+
+        for module in [m for n, m in sys.modules.items() if n.startswith("voro3d") and m is not None]:
+            if getattr(module, name, None) is original:
+                monkeypatch.setattr(module, name, counted)
+    return counts
+
+
+def test_a_mesh_is_checked_once_per_call(full_checks):
+    reconstruct(example_mesh(), 12, steps=5)
+    assert full_checks == {"as_points": 1, "as_mask": 0, "mesh_arrays": 1}  # the mesh's vertices, in mesh_arrays
+
+
+def test_a_cloud_is_checked_once_per_call(full_checks):
+    points, _ = sample_surface(example_mesh(), 3000, seed=0)
+    full_checks.update(as_points=0, mesh_arrays=0)
+    reconstruct(points, 16, steps=5)
+    assert full_checks == {"as_points": 1, "as_mask": 0, "mesh_arrays": 0}
+
+
+def test_checks_inside_trusted_only_convert():
+    from voro3d._validate import as_points, trusted
+
+    bad = np.array([[np.nan, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="NaN"):
+        as_points(bad, "points")
+    with trusted():
+        assert np.isnan(as_points(bad, "points")).any()
+    with pytest.raises(ValueError, match="NaN"):
+        as_points(bad, "points")  # and only inside

@@ -1,11 +1,37 @@
-"""One place that checks arrays at the public boundary and names what is wrong."""
+"""One place that checks arrays at the public boundary and names what is wrong.
+
+Validation happens once per call, at the boundary: a pipeline (``reconstruct``, ``fit``,
+``VoroMesh.to_open3d``, ...) checks what it was given, then runs its stages inside
+:func:`trusted`, where the array checks of the public functions it calls only convert.
+"""
 from __future__ import annotations
+
+import contextlib
+from contextvars import ContextVar
 
 import numpy as np
 
+# True inside a pipeline whose inputs were checked at its boundary.
+_TRUSTED = ContextVar("voro3d_trusted", default=False)
+
+
+@contextlib.contextmanager
+def trusted():
+    """Inputs inside are already checked: :func:`as_points`, :func:`as_mask` and ``io.mesh_arrays`` only convert."""
+    token = _TRUSTED.set(True)
+    try:
+        yield
+    finally:
+        _TRUSTED.reset(token)
+
+
+def is_trusted() -> bool:
+    """Whether the caller runs inside :func:`trusted`."""
+    return _TRUSTED.get()
+
 
 def as_points(value, name: str, *, min_count: int = 1, dtype=np.float64) -> np.ndarray:
-    """Return ``value`` as a finite ``(n, 3)`` array of ``dtype``.
+    """Return ``value`` as a finite ``(n, 3)`` array of ``dtype`` (inside :func:`trusted`: converted only).
 
     Raises
     ------
@@ -13,6 +39,8 @@ def as_points(value, name: str, *, min_count: int = 1, dtype=np.float64) -> np.n
         If ``value`` is not numeric, the shape is not ``(n, 3)``, fewer than ``min_count`` rows arrive,
         or any coordinate is NaN or infinite.
     """
+    if _TRUSTED.get():
+        return np.ascontiguousarray(value, dtype=dtype)
     array = np.asarray(value)
     if array.dtype == object or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
         raise ValueError(f"{name} must be a numeric array, got dtype {array.dtype}")
@@ -28,7 +56,12 @@ def as_points(value, name: str, *, min_count: int = 1, dtype=np.float64) -> np.n
 
 
 def as_mask(value, name: str, length: int) -> np.ndarray:
-    """Return ``value`` as a ``(length,)`` bool array; 0/1 integers are accepted."""
+    """Return ``value`` as a ``(length,)`` bool array; 0/1 integers are accepted.
+
+    Inside :func:`trusted`: converted only.
+    """
+    if _TRUSTED.get():
+        return np.asarray(value, dtype=bool)
     array = np.asarray(value)
     if array.ndim != 1 or array.shape[0] != length:
         raise ValueError(f"{name} must have shape ({length},), got {array.shape}")

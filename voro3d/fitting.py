@@ -12,7 +12,7 @@ import numpy as np
 
 from ._cpufit import KernelLoop, cpu_threads
 from ._extras import require
-from ._validate import MESH_AUTO_GRID, as_points, grid_option, positive_int
+from ._validate import MESH_AUTO_GRID, as_points, grid_option, positive_int, trusted
 from .delaunay import triangulate
 from .fitloop import Adam, FitLoop, spatial_order
 from .frames import fit_frame
@@ -177,15 +177,16 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     _device(device)  # fail before the sampling, not after
 
     vertices, triangles = mesh_arrays(mesh)
-    frame = fit_frame((vertices, triangles))
-    shape = (frame.apply(vertices), triangles)
-    inside = InsideOutside(shape, allow_open=allow_open)  # fails early on an open mesh
-    samples, _ = sample_surface(shape, n_samples, seed=seed)
-    sampled = time.perf_counter() - start
-    result, info = fit_samples(samples, inside.occupancy, grid, frame=frame, steps=steps, lr=lr, milestones=milestones,
-                               gamma=gamma, batch_fraction=batch_fraction, k=k, seed=seed, device=device,
-                               threads=threads, progress=progress)
-    return result, replace(info, sampling_seconds=sampled, total_seconds=info.total_seconds + sampled)
+    with trusted():
+        frame = fit_frame((vertices, triangles))
+        shape = (frame.apply(vertices), triangles)
+        inside = InsideOutside(shape, allow_open=allow_open)  # fails early on an open mesh
+        samples, _ = sample_surface(shape, n_samples, seed=seed)
+        sampled = time.perf_counter() - start
+        result, info = fit_samples(samples, inside.occupancy, grid, frame=frame, steps=steps, lr=lr,
+                                   milestones=milestones, gamma=gamma, batch_fraction=batch_fraction, k=k, seed=seed,
+                                   device=device, threads=threads, progress=progress)
+        return result, replace(info, sampling_seconds=sampled, total_seconds=info.total_seconds + sampled)
 
 
 def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr: float = 0.005,
@@ -228,47 +229,48 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     device = _device(device)
     threads = cpu_threads() if threads is None else positive_int(threads, "threads")
 
-    generators = initial_generators(samples, grid)
-    schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
-                    refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE),
-                    progress=progress)
-    if device == "cpu" and _CPU_KERNEL:
-        loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads)
-        initialised = time.perf_counter()
-        losses = loop.run(steps, **schedule)
-        final_loss = loop.loss()
-    else:
-        import torch
-
-        loop = _TorchLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
-                          device=torch.device(device))
-        initialised = time.perf_counter()
-        previous = torch.get_num_threads()
-        if device == "cpu":
-            torch.set_num_threads(1)
-        try:
+    with trusted():
+        generators = initial_generators(samples, grid)
+        schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
+                        refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE),
+                        progress=progress)
+        if device == "cpu" and _CPU_KERNEL:
+            loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads)
+            initialised = time.perf_counter()
             losses = loop.run(steps, **schedule)
             final_loss = loop.loss()
-        finally:
-            torch.set_num_threads(previous)
-    generators = loop.generators()
-    optimised = time.perf_counter()
+        else:
+            import torch
 
-    # Triangulated once, in the result's units: the labels, any later pass and the extraction share it.
-    if frame is not None:
-        generators = frame.invert(generators)
-        inside = _in_frame(inside, frame)
-    triangulation = triangulate(generators)
-    occupancy = label_cells(generators, inside, triangulation=triangulation)
-    result = VoroMesh(generators, occupancy, grid=grid, frame=frame, triangulation=triangulation)
-    done = time.perf_counter()
-    info = FitInfo(
-        n_samples=samples.shape[0], n_generators=generators.shape[0], final_loss=final_loss, losses=losses,
-        candidate_searches=loop.searches, sampling_seconds=0.0,
-        init_seconds=initialised - start, optimisation_seconds=optimised - initialised,
-        occupancy_seconds=done - optimised, total_seconds=done - start,
-    )
-    return result, info
+            loop = _TorchLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
+                              device=torch.device(device))
+            initialised = time.perf_counter()
+            previous = torch.get_num_threads()
+            if device == "cpu":
+                torch.set_num_threads(1)
+            try:
+                losses = loop.run(steps, **schedule)
+                final_loss = loop.loss()
+            finally:
+                torch.set_num_threads(previous)
+        generators = loop.generators()
+        optimised = time.perf_counter()
+
+        # Triangulated once, in the result's units: the labels, any later pass and the extraction share it.
+        if frame is not None:
+            generators = frame.invert(generators)
+            inside = _in_frame(inside, frame)
+        triangulation = triangulate(generators)
+        occupancy = label_cells(generators, inside, triangulation=triangulation)
+        result = VoroMesh(generators, occupancy, grid=grid, frame=frame, triangulation=triangulation)
+        done = time.perf_counter()
+        info = FitInfo(
+            n_samples=samples.shape[0], n_generators=generators.shape[0], final_loss=final_loss, losses=losses,
+            candidate_searches=loop.searches, sampling_seconds=0.0,
+            init_seconds=initialised - start, optimisation_seconds=optimised - initialised,
+            occupancy_seconds=done - optimised, total_seconds=done - start,
+        )
+        return result, info
 
 
 def _in_frame(inside, frame):

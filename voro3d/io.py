@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import as_points
+from ._validate import as_points, is_trusted
 from .geometry import vertex_normals
 
 __all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POLYGON_SUFFIXES", "atomic_path", "load_mesh", "load_points",
@@ -101,6 +101,8 @@ def mesh_arrays(mesh, name: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
         vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
     else:
         raise TypeError(f"{name} must be an open3d TriangleMesh or (vertices, triangles), got {type(mesh).__name__}")
+    if is_trusted():
+        return np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(triangles, dtype=np.int64)
     triangles = np.asarray(triangles)
     if triangles.size == 0:
         raise ValueError(f"{name} has no triangles")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import MESH_AUTO_GRID, as_points, grid_option, method_options, positive_int
+from ._validate import MESH_AUTO_GRID, as_points, grid_option, method_options, positive_int, trusted
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
 from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 
@@ -92,24 +92,37 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     if kind == "mesh":
         if denoise is not None:
             raise ValueError("denoise applies to point clouds only; a mesh input takes denoise=None")
-        grid = MESH_AUTO_GRID if grid == "auto" else grid
-        if method == "fit":
-            from .fitting import fit
-
-            shape = fit(data, grid, allow_open=allow_open, progress=progress, **options)[0]
-        else:
-            from .infer import predict_from_mesh
-
-            shape = predict_from_mesh(data, grid, allow_open=allow_open, **options)
-        return shape.to_open3d(clean=clean, surface=data if clean else None)
-    if allow_open:
+    elif allow_open:
         raise ValueError("allow_open applies to meshes only; a point cloud may be open as it is")
+    # The input was checked by _read: the stages below trust it.
+    with trusted():
+        if kind == "mesh":
+            return _mesh_to_mesh(data, MESH_AUTO_GRID if grid == "auto" else grid, method, options,
+                                 allow_open=allow_open, clean=clean, progress=progress)
+        return _cloud_to_mesh(*data, grid, method, options, denoise=denoise, clean=clean, progress=progress)
+
+
+def _mesh_to_mesh(mesh, grid: int, method: str, options: dict, *, allow_open: bool, clean: bool, progress: bool):
+    """A mesh's VoroMesh by the fit or the learned model, cleaned and fitted to the mesh."""
+    if method == "fit":
+        from .fitting import fit
+
+        shape = fit(mesh, grid, allow_open=allow_open, progress=progress, **options)[0]
+    else:
+        from .infer import predict_from_mesh
+
+        shape = predict_from_mesh(mesh, grid, allow_open=allow_open, **options)
+    return shape.to_open3d(clean=clean, surface=mesh if clean else None)
+
+
+def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *, denoise, clean: bool,
+                   progress: bool):
+    """A cloud's mesh, object by object (:func:`voro3d.pointcloud.separate_objects`), checked against its points."""
     import open3d as o3d
 
     from .pointcloud import cloud_mesh, reconstruct_points, separate_objects, transfer_colors
     from .pointcloud.reconstruct import report_phase
 
-    points, normals, colors = data
     mesh = o3d.geometry.TriangleMesh()
     # Objects far apart are reconstructed one by one, each at its own grid; their meshes lie in
     # disjoint boxes, so together they are still closed and free of crossings.
@@ -178,18 +191,18 @@ def _check_fit(mesh, points, voxel: float) -> None:
 
 
 def _read(geometry):
-    """('mesh', TriangleMesh) or ('points', (points, normals or None, colours or None))."""
+    """('mesh', (vertices, triangles)) or ('points', (points, normals or None, colours or None)), checked."""
     import open3d as o3d
 
     if isinstance(geometry, (str, Path)):
         path = Path(geometry)
-        from .io import MESH_SUFFIXES, load_mesh, load_points
+        from .io import MESH_SUFFIXES, load_mesh, load_points, mesh_arrays
 
         if not path.exists():
             raise FileNotFoundError(f"no such file: {path}")
         if path.suffix.lower() in MESH_SUFFIXES:
             try:
-                return "mesh", load_mesh(path)
+                return "mesh", mesh_arrays(load_mesh(path))
             except ValueError as error:
                 if "no triangles" not in str(error) or path.suffix.lower() != ".ply":
                     raise
@@ -199,9 +212,9 @@ def _read(geometry):
     if isinstance(geometry, o3d.t.geometry.PointCloud):
         geometry = geometry.to_legacy()
     if isinstance(geometry, o3d.geometry.TriangleMesh):
-        if len(geometry.triangles) == 0:
-            raise ValueError("mesh has no triangles")
-        return "mesh", geometry
+        from .io import mesh_arrays
+
+        return "mesh", mesh_arrays(geometry)
     colors = None
     if isinstance(geometry, o3d.geometry.PointCloud):
         points = np.asarray(geometry.points)

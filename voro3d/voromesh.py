@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import as_mask, as_points
+from ._validate import as_mask, as_points, trusted
 from .delaunay import DEFAULT_TOLERANCE, Triangulation, triangulate
 from .frames import NormalizationFrame
 from .geometry import grid_voxel
@@ -113,24 +113,30 @@ class VoroMesh:
             ``surface`` without ``clean``, or what the stages refuse (named).
         """
         from .extract import voronoi_surface
-        from .io import to_triangle_mesh
+        from .io import mesh_arrays, to_triangle_mesh
         from .watertight import assert_closed_manifold
 
-        if surface is not None and not clean:
-            raise ValueError("surface needs clean=True: the uncleaned Voronoi faces are not fitted to a surface")
-        triangulation = self.triangulated() if tolerance == DEFAULT_TOLERANCE else None
-        vertices, triangles = voronoi_surface(self.generators, self.occupancy, tolerance=tolerance,
-                                              triangulation=triangulation)
-        assert_closed_manifold(vertices, triangles)
-        if clean:
-            from .cleaning import clean_surface
+        if surface is not None:
+            if not clean:
+                raise ValueError("surface needs clean=True: the uncleaned Voronoi faces are not fitted to a surface")
+            surface = mesh_arrays(surface, "surface")
+        if not (np.isfinite(smoothing) and smoothing >= 0):
+            raise ValueError(f"smoothing must be finite and >= 0, got {smoothing}")
+        # The generators were checked when the VoroMesh was made: the stages below trust them.
+        with trusted():
+            triangulation = self.triangulated() if tolerance == DEFAULT_TOLERANCE else None
+            vertices, triangles = voronoi_surface(self.generators, self.occupancy, tolerance=tolerance,
+                                                  triangulation=triangulation)
+            assert_closed_manifold(vertices, triangles)
+            if clean:
+                from .cleaning import clean_surface
 
-            vertices, triangles, info = clean_surface(vertices, triangles, voxel=self.voxel)
-            if surface is not None:
-                from .snapping import snap_to_surface
+                vertices, triangles, info = clean_surface(vertices, triangles, voxel=self.voxel)
+                if surface is not None:
+                    from .snapping import snap_to_surface
 
-                vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing)
-        return to_triangle_mesh(vertices, triangles, normals=True)
+                    vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing)
+            return to_triangle_mesh(vertices, triangles, normals=True)
 
     def to_polygons(self, *, tolerance: float = DEFAULT_TOLERANCE):
         """The Voronoi faces of the surface as polygons, see :func:`voro3d.extract.voronoi_polygons`."""

@@ -35,7 +35,7 @@ from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, 
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN,
                      SHEET_OFFSET)
 
-__all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh", "auto_grid", "max_supported_grid", "transfer_colors"]
+__all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh", "auto_grid", "max_supported_grid"]
 
 MIN_POINTS = 100
 # The VoroLoss fit of the target samples, or the learned model on the target's SDF grid.
@@ -188,6 +188,20 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         Too few points left after outlier removal, a cloud that fills a volume, normals that
         cannot be estimated, an unknown method, or an option the method does not use.
     """
+    from .._validate import as_points, trusted
+
+    points = as_points(points, "points", min_count=MIN_POINTS)
+    if normals is not None:
+        normals = np.asarray(normals, np.float64)
+        if normals.shape != points.shape:
+            raise ValueError(f"normals must have the points' shape {points.shape}, got {normals.shape}")
+    with trusted():
+        return _reconstruct_points(points, normals, grid=grid, method=method, steps=steps, seed=seed, device=device,
+                                   model=model, threads=threads, denoise=denoise, progress=progress)
+
+
+def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, model, threads, denoise, progress):
+    """:func:`reconstruct_points` on checked inputs."""
     from scipy.spatial import cKDTree
 
     from .._validate import method_options
@@ -475,25 +489,3 @@ def _predict(target, grid: int, frame, *, model, threads):
     sdf = np.where(target.inside(nodes), -distance, distance).reshape(grid, grid, grid).astype(np.float32)
     shape = predict(sdf, model=model, threads=threads)
     return VoroMesh(frame.invert(shape.generators), shape.occupancy, grid=grid, frame=frame)
-
-
-def transfer_colors(vertices: np.ndarray, points: np.ndarray, colors: np.ndarray, *, k: int = 8) -> np.ndarray:
-    """Colours at mesh vertices from a coloured cloud: inverse-distance mean of the ``k`` nearest points.
-
-    Parameters
-    ----------
-    vertices : (v, 3) float64
-    points : (n, 3) float64
-    colors : (n, 3) float64
-        RGB in [0, 1].
-
-    Returns
-    -------
-    (v, 3) float64
-    """
-    from scipy.spatial import cKDTree
-
-    distance, neighbour = cKDTree(points).query(vertices, k=min(k, points.shape[0]), workers=-1)
-    distance, neighbour = distance.reshape(len(vertices), -1), neighbour.reshape(len(vertices), -1)
-    weight = 1.0 / np.maximum(distance, 1e-12 * max(float(np.ptp(points)), 1e-300))
-    return np.clip(np.einsum("vk,vkc->vc", weight, colors[neighbour]) / weight.sum(axis=1, keepdims=True), 0.0, 1.0)
