@@ -8,7 +8,7 @@ PYTHON="${PYTHON:-python3}"
 what="${1:-test}"
 case "$what" in
     demo) echo "installing voro3d into .venv (about 3-4 minutes, ~1.1 GB; once)" ;;
-    test) echo "installing torch (CPU), onnx, ray and the test tools into .venv (about 3 more minutes, ~1.1 GB more; once)" ;;
+    test) echo "installing torch (CPU), onnx, ray and the test tools into .venv (about 3-4 more minutes, ~1.1 GB more; once)" ;;
     *) echo "usage: scripts/install.sh demo|test" >&2; exit 2 ;;
 esac
 
