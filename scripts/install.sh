@@ -1,8 +1,16 @@
 #!/usr/bin/env bash
-# Installs the system libraries Open3D and CGAL need, a CPU build of torch, then voro3d into .venv.
+# Installs voro3d into .venv: `install.sh demo` what the demo needs (voro3d alone, no torch),
+# `install.sh test` everything the tests need (a CPU build of torch, then the torch, onnx, ray and dev extras).
+# Both first install the system libraries Open3D and CGAL need, where apt-get is there and they are missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON="${PYTHON:-python3}"
+what="${1:-test}"
+case "$what" in
+    demo) echo "installing voro3d into .venv (about 3-4 minutes, ~1.1 GB; once)" ;;
+    test) echo "installing torch (CPU), onnx, ray and the test tools into .venv (about 3-4 more minutes, ~1.1 GB more; once)" ;;
+    *) echo "usage: scripts/install.sh demo|test" >&2; exit 2 ;;
+esac
 
 need_apt=()
 for pkg in libusb-1.0-0 libvulkan1 mesa-vulkan-drivers libgl1 libegl1 libgomp1 g++ libcgal-dev libgmp-dev libmpfr-dev; do
@@ -15,6 +23,11 @@ fi
 
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
+if [ "$what" = demo ]; then
+    # The demo (python -m voro3d.demo) and the voro3d command need no extra: no torch, no ray, no test tools.
+    .venv/bin/python -m pip install -q -e .
+    exit 0
+fi
 # A CPU build of torch first, so the torch extra's torch>=2.2 is already met (no multi-GB CUDA wheel).
 if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
     if command -v nvidia-smi >/dev/null 2>&1; then

@@ -1,4 +1,4 @@
-"""The public API's conventions (README, "API conventions"), checked over every public name."""
+"""The public API's conventions (voro3d/__init__.py, "API conventions"), checked over every public name."""
 import argparse
 import dataclasses
 import importlib

@@ -120,3 +120,16 @@ def test_flag_names():
         "--method learned takes no --steps or --seed (only --method fit uses them)"
     assert flag_names("pass allow_open=True to decide it") == "pass --allow-open to decide it"
     assert flag_names("the points fill a volume") == "the points fill a volume"
+
+
+@pytest.mark.parametrize("arguments, match", [
+    (["--points", "100", "-o", "{tmp}/s.xyzrgb"], "must end in one of"),
+    (["--points", "100", "-o", "{tmp}/s.obj"], "--points is written as one of .ply .pcd .xyz .xyzn .pwn .npy"),
+    (["-o", "{tmp}/s.xyz"], "a mesh is written as one of"),
+])
+def test_example_refuses_formats_it_cannot_write(tmp_path, capsys, arguments, match):
+    try:
+        status = main(["example", "torus"] + [a.format(tmp=tmp_path) for a in arguments])
+    except SystemExit as stopped:
+        status = stopped.code
+    assert status == 2 and match in _error(capsys) and not list(tmp_path.iterdir())

@@ -216,11 +216,15 @@ def _say(args, message: str) -> None:
 
 
 def _example(args) -> None:
-    from .io import save_mesh, save_points
+    from .io import MESH_SUFFIXES, POINT_WRITE_SUFFIXES, save_mesh, save_points
     from .sampling import sample_surface
     from .shapes import example_mesh
 
     mesh = example_mesh(args.name)
+    allowed = MESH_SUFFIXES if args.points is None else POINT_WRITE_SUFFIXES
+    if Path(args.output).suffix.lower() not in allowed:
+        raise ValueError(f"-o {args.output}: {'a mesh' if args.points is None else '--points'} is written as one of "
+                         f"{' '.join(allowed)}")
     if args.points is None:
         save_mesh(mesh, args.output)
         _say(args, f"wrote {args.output} (the {args.name} mesh, {len(mesh.triangles)} triangles)")
@@ -240,7 +244,7 @@ def _command(commands, name: str, help_text: str, example: str, run):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .io import MESH_SUFFIXES, POINT_SUFFIXES
+    from .io import MESH_SUFFIXES, POINT_SUFFIXES, POINT_WRITE_SUFFIXES
     from .shapes import example_names
 
     parser = argparse.ArgumentParser(
@@ -255,8 +259,9 @@ def build_parser() -> argparse.ArgumentParser:
     example = _command(commands, "example", "write a bundled shape as a mesh, or sampled as a point cloud",
                        "voro3d example bracket --points 20000 -o cloud.ply", _example)
     example.add_argument("name", choices=example_names(), help="the shape")
-    example.add_argument("-o", "--output", required=True, type=output_path(*MESH_SUFFIXES, *POINT_SUFFIXES),
-                         help="output mesh, or point cloud with --points (.ply .pcd .xyz .xyzn .npy ...)")
+    example.add_argument("-o", "--output", required=True, type=output_path(*MESH_SUFFIXES, *POINT_WRITE_SUFFIXES),
+                         help=f"output mesh ({' '.join(MESH_SUFFIXES)}), or point cloud with --points "
+                              f"({' '.join(POINT_WRITE_SUFFIXES)})")
     example.add_argument("--points", type=positive_argument, help="sample this many surface points instead")
     example.add_argument("--no-normals", action="store_true", help="leave the points' normals out")
     example.add_argument("--seed", type=int, default=0, help="seed of the sampling, default 0")

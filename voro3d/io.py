@@ -16,7 +16,7 @@ import numpy as np
 from ._validate import as_points, is_trusted
 from .geometry import vertex_normals
 
-__all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POLYGON_SUFFIXES", "atomic_path", "load_mesh", "load_points",
+__all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POINT_WRITE_SUFFIXES", "POLYGON_SUFFIXES", "atomic_path", "load_mesh", "load_points",
            "mesh_arrays", "save_mesh", "save_points", "save_polygons", "to_triangle_mesh"]
 
 # Vertices closer than this fraction of the bounding-box diagonal are one vertex. Files repeat a
@@ -29,6 +29,8 @@ POINT_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pwn", ".pts", ".
 # Plain text, one point a line: x y z, or x y z nx ny nz (CGAL's and Poisson's .pwn; .xyz either way).
 TEXT_POINT_SUFFIXES = (".xyz", ".pwn")
 POLYGON_SUFFIXES = (".ply", ".obj", ".off")
+# Point-cloud formats save_points writes, normals included (Open3D's .pts and .xyzrgb carry none).
+POINT_WRITE_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".pwn", ".npy")
 
 
 @contextlib.contextmanager
@@ -298,7 +300,7 @@ def save_mesh(mesh, path) -> Path:
 
 
 def save_points(points, path, *, normals=None) -> Path:
-    """Write a point cloud atomically; the suffix picks the format (:data:`POINT_SUFFIXES`).
+    """Write a point cloud atomically; the suffix picks the format (:data:`POINT_WRITE_SUFFIXES`).
 
     Parameters
     ----------
@@ -317,8 +319,8 @@ def save_points(points, path, *, normals=None) -> Path:
     points = as_points(points, "points")
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix not in POINT_SUFFIXES:
-        raise ValueError(f"path must end in one of {', '.join(POINT_SUFFIXES)}, got {path.name!r}")
+    if suffix not in POINT_WRITE_SUFFIXES:
+        raise ValueError(f"path must end in one of {', '.join(POINT_WRITE_SUFFIXES)}, got {path.name!r}")
     columns = points if normals is None else np.hstack([points, as_points(normals, "normals")])
     with atomic_path(path, suffix=suffix) as tmp:
         if suffix == ".npy":

@@ -4,6 +4,21 @@
 versions, a numpy array or a path) and returns an ``open3d.geometry.TriangleMesh``, like
 ``TriangleMesh.create_from_point_cloud_poisson``, but closed and free of self-intersections.
 Meshes go to the direct fit (or the learned model); point clouds to :mod:`voro3d.pointcloud`.
+
+The grid of reconstruct
+-----------------------
+``grid`` is an int of at least 4, or ``"auto"`` (the default):
+
+- **a mesh:** ``"auto"`` is 32 (``reconstruction.MESH_AUTO_GRID``): a mesh has no point spacing to
+  go by. Any larger grid works; there is no upper limit, only cost.
+- **a point cloud:** ``"auto"`` makes voxels about 2.5 median point spacings ``s`` wide (in the fit
+  frame, diagonal 2): ``round(2 / (2.5 s)) + 1``, clipped to 32-64 (``pointcloud.auto_grid``); it
+  never warns. An explicit grid above ``pointcloud.max_supported_grid(s) = int(2 / s) + 1`` (voxels
+  narrower than one spacing) still runs, with a ``UserWarning``: between the points the surface then
+  comes from the smooth target alone, and no finer grid adds detail the points do not hold.
+- **cost:** the fit samples ``150 g²`` surface points and optimises the corners of the voxels they
+  fall in (also about ``g²``), so time and memory grow about as ``g²``: 128 is practical, 256 slow.
+  The learned model (``method="learned"``) was trained at 32 and 64.
 """
 from __future__ import annotations
 

@@ -42,6 +42,10 @@ their outputs are identical bit for bit.
   memory it uses (thread stacks, allocator arenas), so leave room: two to four times the
   ``peak_memory_mb`` that rows report.
 
+``--engine ray`` (``pip install 'voro3d[ray]'``) starts a local Ray instance, or joins
+``--ray-address``, and runs the same per-shape function as Ray tasks. ``--memory-limit`` needs POSIX
+``RLIMIT_AS``; the rest runs where ``fcntl`` and ``resource`` are missing.
+
 Exit codes of ``voro3d batch``: 0 every shape is ok (skipped ones included), 1 some shape failed or
 timed out (:data:`EXIT_SOME_FAILED`), 2 bad arguments, 130 interrupted (finished shapes are kept;
 rerun the same command to resume).
