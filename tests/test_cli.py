@@ -72,10 +72,14 @@ def test_an_open_mesh_has_a_way_through(tmp_path, capsys):
     out = tmp_path / "a.ply"
     assert main(["reconstruct", str(source), "-o", str(out), "--grid", "16", "--steps", "5", "-q"]) == 2
     message = _error(capsys)
-    assert "pass --allow-open" in message and "as a point cloud" in message and "allow_open" not in message
+    assert "pass --allow-open" in message and "(--sample N)" in message and "allow_open" not in message
     assert main(["reconstruct", str(source), "-o", str(out), "--grid", "16", "--steps", "5", "-q",
                  "--allow-open"]) == 0
     assert out.exists()
+    sampled = tmp_path / "b.ply"
+    assert main(["reconstruct", str(source), "-o", str(sampled), "--grid", "16", "--steps", "5", "-q",
+                 "--sample", "5000"]) == 0
+    assert sampled.exists()
 
 
 def test_example_writes_a_mesh_and_a_cloud(tmp_path):

@@ -75,7 +75,15 @@ def _reconstruct(args) -> None:
     from .io import save_mesh
     from .reconstruction import reconstruct
 
-    mesh = reconstruct(args.input, args.grid, method=args.method, steps=args.steps, seed=args.seed,
+    source = args.input
+    if args.sample is not None:
+        import numpy as np
+
+        from .io import load_mesh
+        from .sampling import sample_surface
+
+        source = np.hstack(sample_surface(load_mesh(args.input), args.sample, seed=0 if args.seed is None else args.seed))
+    mesh = reconstruct(source, args.grid, method=args.method, steps=args.steps, seed=args.seed,
                        device=args.device, denoise=args.denoise, allow_open=args.allow_open, clean=not args.no_clean,
                        progress=not args.quiet)
     save_mesh(mesh, args.output)
@@ -129,6 +137,7 @@ def positive_argument(text: str) -> int:
 _FLAG_NAMES = [
     (re.compile(r"allow_open=True"), "--allow-open"),
     (re.compile(r"denoise=None"), "neither --denoise nor --no-denoise"),
+    (re.compile(r"reconstruct points sampled on it as a point cloud"), "reconstruct points sampled on it (--sample N)"),
     (re.compile(r"method='(\w+)'"), r"--method \1"),
     (re.compile(r"\b(steps|seed|device|denoise|grid|allow_open)\b(?= (must|applies|or|\())"),
      lambda match: "--" + match.group(1).replace("_", "-")),
@@ -289,6 +298,9 @@ def build_parser() -> argparse.ArgumentParser:
     smoothing.add_argument("--no-denoise", dest="denoise", action="store_const", const=False,
                            help="point clouds: never smooth the points")
     _allow_open_option(rebuild)
+    rebuild.add_argument("--sample", type=positive_argument, metavar="N",
+                         help="mesh input: reconstruct N points sampled on it (with its normals) as a point cloud, "
+                              "for an open or broken mesh")
 
     fit = _command(commands, "fit", "fit a VoroMesh to a watertight mesh (direct optimisation)",
                    "voro3d example knot -o knot.ply && voro3d fit knot.ply -o knot_voromesh.ply --png knot.png", _fit)

@@ -173,7 +173,7 @@ class InsideOutside:
             raise ValueError(
                 f"mesh has {bad_edges} edges not shared by exactly two triangles (open boundary or "
                 "non-manifold edges): inside/outside is undefined; pass allow_open=True to decide it by "
-                "generalized winding number, or reconstruct its vertices as a point cloud")
+                "generalized winding number, or reconstruct points sampled on it as a point cloud")
         self._scene = raycasting_scene(self.vertices, self.triangles)
 
     @staticmethod
