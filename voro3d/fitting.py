@@ -52,7 +52,7 @@ SAMPLES_PER_FACE = 150
 # Against a search at every step (benchmarks/profile_fit.py --refresh-study, bunny, fandisk and
 # thingi32 44234 at 32, bunny at 64) a threshold of 1 voxel left the final loss within 3% and CD and
 # F1 within 1%; with no second search the final loss is 1.4-6.4 times higher and CD 3-8% worse.
-# 1.5 voxels with DEFAULT_K candidates, but at most MAX_REFRESH_DISTANCE in the fit frame (1.24
+# 1.5 voxels with FIT_K candidates, but at most MAX_REFRESH_DISTANCE in the fit frame (1.24
 # voxels at 32^3), searches half as often at the same mean CD, F1 and NC over the dev meshes at 32
 # and 64 (profile_fit.py --schedule-study). A coarse grid needs the cap: 1.5 voxels at 32^3 left 2
 # searches in all, and thin parts (the cow's horns) fitted worse, mean CD +8.5%.
@@ -64,11 +64,12 @@ MAX_REFRESH_DISTANCE = 0.08
 # tests can compare the two.
 _CPU_KERNEL = True
 
-# kNN candidates per sample: the nearest generator and 7 more. The official code (and
-# voro3d.loss.DEFAULT_K) takes 10 more; at the fit's refresh threshold the nearest bisector is
-# among the first 8 as often (profile_fit.py --schedule-study: the same mean CD, F1 and NC over
-# the dev meshes at 32 and 64), and the step and each search cost a quarter less.
-DEFAULT_K = 8
+# kNN candidates per sample in the fit: the nearest generator and 7 more. The official code (and
+# voro3d.loss.DEFAULT_K, a standalone VoroLoss with no re-ranking between searches) takes 10 more;
+# at the fit's refresh threshold the nearest bisector is among the first 8 as often
+# (profile_fit.py --schedule-study: the same mean CD, F1 and NC over the dev meshes at 32 and 64),
+# and the step and each search cost a quarter less.
+FIT_K = 8
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ class FitInfo:
 
 
 def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 200, 250),
-        gamma: float = 0.5, batch_fraction: float = 0.2, k: int = DEFAULT_K, n_samples: int | None = None,
+        gamma: float = 0.5, batch_fraction: float = 0.2, k: int = FIT_K, n_samples: int | None = None,
         seed: int = 0, device: str = "cpu", threads: int | None = None, allow_open: bool = False,
         progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to a triangle mesh, and report how the fit went.
@@ -139,7 +140,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     batch_fraction : float
         Share of the samples used per step, in ``(0, 1]`` (official: 0.2).
     k : int
-        kNN candidates per sample, ``>= 2`` (default :data:`DEFAULT_K`).
+        kNN candidates per sample, ``>= 2`` (default :data:`FIT_K`).
     n_samples : int, optional
         Surface samples; default ``150 * grid**2`` (official).
     seed : int
@@ -207,7 +208,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
 
 def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr: float = 0.005,
                 milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
-                k: int = DEFAULT_K, seed: int = 0, device: str = "cpu", threads: int | None = None,
+                k: int = FIT_K, seed: int = 0, device: str = "cpu", threads: int | None = None,
                 progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit`.
 
