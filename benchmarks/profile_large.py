@@ -1,0 +1,271 @@
+"""Seconds and peak memory, stage by stage, of ``voro3d.reconstruct`` on a large oriented cloud.
+
+A dev mesh is sampled area-uniformly into ``--points`` points with its true (face) normals
+(:func:`voro3d.sampling.sample_surface`), handed over as an Open3D ``PointCloud`` with normals,
+and reconstructed with ``grid="auto"``, as a user with a dense scan would. A child process
+samples this process's resident memory (``/proc/<pid>/statm``) every ``--interval`` seconds; each
+stage's peak is the highest sample inside its time window, and the whole call's is also read
+from ``getrusage`` (exact). Stages:
+
+* ``read``: input checks, duplicate merge, normal repair (``reconstruction._read``);
+* ``separate``: objects far apart (``separate_objects``);
+* ``clean``, ``normals``, ``surface``, ``samples``, ``fit``: the windows that
+  ``PointCloudInfo.seconds`` times inside ``reconstruct_points``;
+* ``mesh``: extraction, cleaning and snapping (``cloud_mesh``); ``check``: ``_check_fit``.
+
+The functions those stages call are wrapped too (where they exist), each with its calls,
+seconds and peak: that is where a big intermediate shows. Memory is absolute (the cloud and
+the imports are in it: ``baseline``, read just before the call). The machine may be shared:
+timings then are contended, and the load average at start and end is recorded.
+
+Each run is stored under its ``--label`` (``before``, ``after`` ...) in
+``benchmarks/results/large_profile.json``, and ``large_profile.md`` is written from all runs.
+
+    python benchmarks/profile_large.py [--mesh organic_bunny.off] [--points 1000000]
+        [--label after] [--evaluate] [--max-gb 18]
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEV = ROOT.parent / "shared" / "data" / "dev"
+OUT = ROOT / "benchmarks" / "results" / "large_profile"
+PAGE = os.sysconf("SC_PAGE_SIZE")
+GB = 1024**3
+STAGES = ("read", "separate", "clean", "normals", "surface", "samples", "fit", "mesh", "check")
+# (module, function) wrapped for the per-function table; names that a version lacks are skipped.
+WRAPPED = [
+    ("voro3d.reconstruction", "_read"), ("voro3d.reconstruction", "_check_fit"),
+    ("voro3d.pointcloud", "separate_objects"),
+    ("voro3d.pointcloud", "reconstruct_points"), ("voro3d.pointcloud", "cloud_mesh"),
+    ("voro3d.pointcloud.reconstruct", "merge_duplicates"), ("voro3d.pointcloud.reconstruct", "outlier_mask"),
+    ("voro3d.pointcloud.reconstruct", "cloud_stats"), ("voro3d.pointcloud.reconstruct", "local_dimension"),
+    ("voro3d.pointcloud.reconstruct", "fill_ratio"), ("voro3d.pointcloud.reconstruct", "estimate_normals"),
+    ("voro3d.pointcloud.reconstruct", "orient_normals"), ("voro3d.pointcloud.reconstruct", "sign_disagreement"),
+    ("voro3d.pointcloud.reconstruct", "point_areas"), ("voro3d.pointcloud.reconstruct", "winding_level"),
+    ("voro3d.pointcloud.reconstruct", "imls"), ("voro3d.pointcloud.reconstruct", "poisson_surface"),
+    ("voro3d.pointcloud.reconstruct", "target_surface"), ("voro3d.pointcloud.reconstruct", "_sheet_if_closer"),
+    ("voro3d.pointcloud.reconstruct", "_check_coverage"), ("voro3d.pointcloud.reconstruct", "_fit_samples"),
+    ("voro3d.pointcloud.reconstruct", "_drop_stray_cells"), ("voro3d.fitting", "fit_samples"),
+    ("voro3d.pointcloud.poisson.PoissonSurface", "escape"), ("voro3d.pointcloud.poisson.PoissonSurface", "distance"),
+    ("voro3d.pointcloud.poisson", "_supported_pieces"),
+    ("voro3d.cleaning", "clean"), ("voro3d.snapping", "snap_to_surface"),
+]
+
+
+# The sampler runs in its own process: a thread would wait for the GIL, which Open3D's Poisson,
+# libigl and some numpy calls hold through their largest allocations (a thread's samples at 100k
+# points peaked at 0.4 GB where getrusage read 1.6 GB).
+SAMPLER = """
+import os, signal, sys, time
+pid, interval, limit, page = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3]), os.sysconf("SC_PAGE_SIZE")
+while True:
+    try:
+        with open(f"/proc/{pid}/statm") as handle:
+            value = int(handle.read().split()[1]) * page
+    except (FileNotFoundError, ProcessLookupError):
+        break
+    print(time.perf_counter(), value, flush=True)
+    if value > limit:
+        print(f"resident memory {value / 2**30:.1f} GB over the limit: killing {pid}", file=sys.stderr, flush=True)
+        os.kill(pid, signal.SIGKILL)
+        break
+    time.sleep(interval)
+"""
+
+
+class Memory:
+    """Resident memory of this process, sampled by a child process; it kills this one past ``limit`` bytes."""
+
+    def __init__(self, interval: float, limit: float):
+        import subprocess
+        import sys
+        import tempfile
+
+        self._log = tempfile.TemporaryFile("w+")
+        self._process = subprocess.Popen([sys.executable, "-c", SAMPLER, str(os.getpid()), str(interval), str(limit)],
+                                         stdout=self._log)
+        self.times, self.values = np.zeros(0), np.zeros(0)
+
+    @staticmethod
+    def now() -> int:
+        with open("/proc/self/statm") as handle:
+            return int(handle.read().split()[1]) * PAGE
+
+    def stop(self):
+        self._process.terminate()
+        self._process.wait()
+        self._log.seek(0)
+        samples = np.loadtxt(self._log, ndmin=2)
+        self.times, self.values = samples[:, 0], samples[:, 1]
+
+    def peak(self, start: float, end: float) -> float:
+        """Highest sample in [start, end] (the nearest samples around a window shorter than the interval)."""
+        inside = (self.times >= start) & (self.times <= end)
+        if not inside.any():
+            inside = np.zeros(len(self.times), bool)
+            inside[max(np.searchsorted(self.times, start) - 1, 0):np.searchsorted(self.times, end) + 1] = True
+        return float(self.values[inside].max())
+
+
+def wrap(spans: list):
+    """Wrap the ``WRAPPED`` functions so that every call appends (name, start, end) to ``spans``."""
+    import functools
+
+    for module_name, name in WRAPPED:
+        owner_name, _, attribute = (module_name + "." + name).rpartition(".")
+        try:
+            owner = importlib.import_module(owner_name)
+        except ImportError:
+            module, _, cls = owner_name.rpartition(".")
+            try:
+                owner = getattr(importlib.import_module(module), cls)
+            except (ImportError, AttributeError):
+                continue
+        function = getattr(owner, attribute, None)
+        if function is None or getattr(function, "_profiled", False):
+            continue
+
+        def wrapper(*args, __function=function, __name=name, **kwargs):
+            start = time.perf_counter()
+            try:
+                return __function(*args, **kwargs)
+            finally:
+                spans.append((__name, start, time.perf_counter()))
+
+        wrapped = functools.wraps(function)(wrapper)
+        wrapped._profiled = True
+        setattr(owner, attribute, wrapped)
+
+
+def make_cloud(mesh_path: Path, n: int, seed: int):
+    import open3d as o3d
+
+    import voro3d
+    from voro3d.sampling import sample_surface
+
+    mesh = voro3d.load_mesh(mesh_path)
+    points, normals = sample_surface(mesh, n, seed=seed)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.normals = o3d.utility.Vector3dVector(normals)
+    return mesh, cloud
+
+
+def profile(args) -> dict:
+    import voro3d
+
+    mesh, cloud = make_cloud(DEV / args.mesh, args.points, args.seed)
+    spans: list = []
+    infos: list = []
+    wrap(spans)
+    # reconstruct() imports reconstruct_points from voro3d.pointcloud at call time.
+    import voro3d.pointcloud
+
+    traced = voro3d.pointcloud.reconstruct_points
+
+    def keep_info(*a, **k):
+        shape, info = traced(*a, **k)
+        infos.append(info)
+        return shape, info
+
+    voro3d.pointcloud.reconstruct_points = keep_info
+    memory = Memory(args.interval, args.max_gb * GB)
+    load = os.getloadavg()
+    baseline = Memory.now()
+    start = time.perf_counter()
+    result = voro3d.reconstruct(cloud, grid="auto")
+    end = time.perf_counter()
+    memory.stop()
+    total_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    # The reconstruct_points span (the wrapped inner function) holds its start.
+    inner = [s for s in spans if s[0] == "reconstruct_points"]
+    info = infos[-1]
+    windows = {}
+    cursor = inner[-1][1]
+    for stage in ("clean", "normals", "surface", "samples", "fit"):
+        windows[stage] = (cursor, cursor + info.seconds[stage])
+        cursor += info.seconds[stage]
+    for stage, function in (("read", "_read"), ("separate", "separate_objects"), ("mesh", "cloud_mesh"),
+                            ("check", "_check_fit")):
+        found = [s for s in spans if s[0] == function]
+        if found:
+            windows[stage] = (found[0][1], found[-1][2])
+    stages = {stage: dict(seconds=round(windows[stage][1] - windows[stage][0], 2),
+                          peak_gb=round(memory.peak(*windows[stage]) / GB, 2)) for stage in STAGES if stage in windows}
+    functions = {}
+    for name, begin, finish in spans:
+        row = functions.setdefault(name, dict(calls=0, seconds=0.0, peak_gb=0.0))
+        row["calls"] += 1
+        row["seconds"] = round(row["seconds"] + finish - begin, 2)
+        row["peak_gb"] = round(max(row["peak_gb"], memory.peak(begin, finish) / GB), 2)
+    run = dict(label=args.label, mesh=args.mesh, points=args.points, date=time.strftime("%Y-%m-%d %H:%M"),
+               seconds=round(end - start, 1), peak_gb=round(total_peak / GB, 2), baseline_gb=round(baseline / GB, 2),
+               grid=info.grid, target=info.target, normals=info.normals, faces=len(result.triangles),
+               load_average=[round(load[0], 2), round(os.getloadavg()[0], 2)], cpus=os.cpu_count(),
+               stages=stages, functions=functions)
+    if args.evaluate:
+        scores = voro3d.evaluate(result, mesh)
+        run.update(chamfer_x1e5=round(scores["chamfer_x1e5"], 4), nc=round(scores["nc"], 4), f1=round(scores["f1"], 4))
+    return run
+
+
+def write(runs: list, out: Path) -> None:
+    out.with_suffix(".json").write_text(json.dumps(runs, indent=1) + "\n")
+    lines = ["# Large clouds: seconds and peak memory per stage of `reconstruct`", "",
+             "Area-uniform samples of a dev mesh with their true normals, `voro3d.reconstruct(cloud, grid=\"auto\")` "
+             "(`benchmarks/profile_large.py`). Peak = highest resident memory sampled in the stage's window "
+             "(absolute: the cloud and the imports are in it, `baseline`); the whole call's from `getrusage`. "
+             "Timings on a shared 2-core machine are contended (load average at start, end).", "",
+             "| run | mesh | points | grid | seconds | peak GB | baseline GB | load | "
+             + " | ".join(STAGES) + " |",
+             "|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES)]
+    for run in runs:
+        cells = [f"{run['stages'][s]['seconds']:.1f} s / {run['stages'][s]['peak_gb']:.1f}" if s in run["stages"] else "-"
+                 for s in STAGES]
+        lines.append(f"| {run['label']} | {run['mesh']} | {run['points']:,} | {run['grid']} | {run['seconds']:.1f} | "
+                     f"{run['peak_gb']:.2f} | {run['baseline_gb']:.2f} | {run['load_average'][0]:.1f}, "
+                     f"{run['load_average'][1]:.1f} | " + " | ".join(cells) + " |")
+    scored = [run for run in runs if "chamfer_x1e5" in run]
+    if scored:
+        lines += ["", "| run | mesh | points | faces | CD x1e5 | NC | F1 |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['label']} | {r['mesh']} | {r['points']:,} | {r['faces']:,} | {r['chamfer_x1e5']:.3f} | "
+                  f"{r['nc']:.4f} | {r['f1']:.3f} |" for r in scored]
+    for run in runs:
+        lines += ["", f"## {run['label']}, {run['mesh']}, {run['points']:,} points ({run['date']}): functions", "",
+                  "| function | calls | seconds | peak GB |", "|---|---|---|---|"]
+        lines += [f"| `{name}` | {row['calls']} | {row['seconds']:.2f} | {row['peak_gb']:.2f} |"
+                  for name, row in run["functions"].items()]
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--mesh", default="organic_bunny.off")
+    parser.add_argument("--points", type=int, default=1_000_000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--label", default="after")
+    parser.add_argument("--interval", type=float, default=0.01, help="seconds between memory samples")
+    parser.add_argument("--max-gb", type=float, default=18.0, help="abort when resident memory passes this")
+    parser.add_argument("--evaluate", action="store_true", help="also CD / NC / F1 against the mesh")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args()
+    run = profile(args)
+    print(json.dumps(run), flush=True)
+    path = args.out.with_suffix(".json")
+    runs = json.loads(path.read_text()) if path.exists() else []
+    runs = [r for r in runs if (r["label"], r["mesh"], r["points"]) != (run["label"], run["mesh"], run["points"])]
+    write(runs + [run], args.out)
+    print(f"wrote {args.out.with_suffix('.md')}")
+
+
+if __name__ == "__main__":
+    main()
