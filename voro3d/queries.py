@@ -13,7 +13,8 @@ from .sampling import grid_nodes
 from .topology import open_edge_count
 
 __all__ = ["InsideOutside", "winding_number", "sdf_grid", "point_areas", "point_winding_number",
-           "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "WINDING_THREADS", "FAST_WINDING_MARGIN"]
+           "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "WINDING_THREADS", "FAST_WINDING_MARGIN", "KNN_BLOCK_ENTRIES",
+           "knn_blocks"]
 
 # Ray directions of the inside test: mutually orthogonal and far from the axes and diagonals, so
 # rays from grid-aligned queries do not run along the edges of grid-aligned (CAD, voxel-derived)
@@ -32,6 +33,9 @@ WINDING_PAIRS_PER_BLOCK = 2**21
 # Threads of :func:`winding_number`: the CPUs this process may run on (its affinity, which a
 # ``voro3d batch`` worker sets before it imports this module), at most four.
 WINDING_THREADS = min(4, available_cpus())
+# Neighbour entries per block of a chunked kNN query (:func:`knn_blocks`): its distances and indices
+# take 32 MB, whatever the cloud's size.
+KNN_BLOCK_ENTRIES = 2**21
 # Fast winding numbers this close to 0.5 are recomputed exactly before the inside test; their
 # error was below 0.0034 on every query tried (dev meshes: grid nodes and random points).
 FAST_WINDING_MARGIN = 0.05
@@ -282,7 +286,46 @@ def sdf_grid(mesh, grid: int, *, allow_open: bool = False) -> np.ndarray:
     return queries.signed_distance(grid_nodes(grid)).reshape(grid, grid, grid).astype(np.float32)
 
 
-def point_areas(points, *, k: int = 16) -> np.ndarray:
+def knn_blocks(tree, k, *, sample: int | None = None, block: int | None = None):
+    """The ``k`` nearest neighbours of a cKDTree's own points, a block of points at a time.
+
+    The caller keeps its per-point reductions of each block, so no (n, k) table of the whole
+    cloud is ever alive. Blocks follow the tree's leaf order: neighbouring queries walk the same
+    nodes, 2.7 times faster than in the cloud's order (10^6 bunny points, k = 17: 2.2 s against
+    5.9 s). The answers are those of one ``tree.query`` of all points.
+
+    Parameters
+    ----------
+    tree : scipy.spatial.cKDTree
+    k : int or list of int
+        Neighbours, the point itself first (a list: only those ranks, as ``tree.query``).
+    sample : int, optional
+        Query only a random subset of this many points (seeded: the same subset every call), or
+        all of them when None or at least the cloud's size: for statistics that a subset gives.
+    block : int, optional
+        Points per block; default ``KNN_BLOCK_ENTRIES`` neighbours' worth.
+
+    Yields
+    ------
+    rows : (b,) int64
+        Which points the block holds.
+    distance : (b, k) float64
+    neighbour : (b, k) int64
+    """
+    if block is None:
+        block = max(1, KNN_BLOCK_ENTRIES // int(np.size(k) if np.ndim(k) else k))
+    order = tree.indices
+    if sample is not None and sample < tree.n:
+        chosen = np.zeros(tree.n, bool)
+        chosen[np.random.default_rng(0).choice(tree.n, positive_int(sample, "sample"), replace=False)] = True
+        order = order[chosen[order]]
+    for start in range(0, order.shape[0], positive_int(block, "block")):
+        chosen = order[start:start + block]
+        distance, neighbour = tree.query(tree.data[chosen], k=k, workers=-1)
+        yield chosen, distance.reshape(len(chosen), -1), neighbour.reshape(len(chosen), -1)
+
+
+def point_areas(points, *, k: int = 16, tree=None, block: int | None = None) -> np.ndarray:
     """Surface area each point of a cloud stands for, from its k-th neighbour distance.
 
     A disc of radius r_k around a point holds about k points, so each stands for
@@ -292,6 +335,9 @@ def point_areas(points, *, k: int = 16) -> np.ndarray:
     ----------
     points : (n, 3) float
     k : int
+    tree : scipy.spatial.cKDTree of ``points``, optional
+    block : int, optional
+        Points queried at a time (:func:`knn_blocks`; only the memory depends on it).
 
     Returns
     -------
@@ -301,15 +347,21 @@ def point_areas(points, *, k: int = 16) -> np.ndarray:
 
     points = as_points(points, "points", min_count=2)
     k = min(positive_int(k, "k", minimum=1), points.shape[0] - 1)
-    distance, _ = cKDTree(points).query(points, k=k + 1, workers=-1)
-    return np.pi * distance[:, -1] ** 2 / k
+    tree = cKDTree(points) if tree is None else tree
+    radius = np.empty(points.shape[0])
+    for rows, distance, _ in knn_blocks(tree, [k + 1], block=block):
+        radius[rows] = distance[:, 0]
+    return np.pi * radius**2 / k
 
 
 def point_winding_number(points, normals, queries, *, areas=None) -> np.ndarray:
     """Generalized winding number of an oriented point cloud (Barill et al. 2018).
 
-    libigl's Barnes-Hut evaluation (octree, second-order expansion): near 1 inside a closed
-    sampled surface, near 0 outside, robust to noise and holes.
+    Barnes-Hut over a kd-tree with a second-order expansion, as libigl's ``fast_winding_number``
+    but compiled here (``voro3d._fitkernel``): libigl's octree keeps every cell's point indices,
+    14.5 GB and 53 s for 10^6 points against 0.9 GB and 3 s here (bunny, 40k queries); errors
+    against the exact sum, 50k points: at most 0.0046 at random queries (libigl 0.0037), 0.012
+    a hundredth of the diagonal off the surface (libigl 0.29).
 
     Parameters
     ----------
@@ -323,8 +375,9 @@ def point_winding_number(points, normals, queries, *, areas=None) -> np.ndarray:
     Returns
     -------
     (q,) float64
+        Near 1 inside a closed sampled surface, near 0 outside, robust to noise and holes.
     """
-    import igl
+    from ._fitkernel import point_winding_number as barnes_hut
 
     points = as_points(points, "points", min_count=2)
     normals = as_points(normals, "normals")
@@ -334,4 +387,4 @@ def point_winding_number(points, normals, queries, *, areas=None) -> np.ndarray:
     if queries.shape[0] == 0:
         return np.zeros(0)
     areas = point_areas(points) if areas is None else np.ascontiguousarray(areas, np.float64)
-    return np.asarray(igl.fast_winding_number(points, normals, areas, queries), np.float64)
+    return barnes_hut(points, normals, areas, queries, threads=WINDING_THREADS)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .tuning import SIGN_SAMPLE
+
 __all__ = ["estimate_normals", "orient_normals", "sign_disagreement", "repair_normals"]
 
 # Neighbours for normal estimation and orientation.
@@ -96,7 +98,8 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     return orient_normals(points, normals, neighbours=(distances[:, :graph_k + 1], neighbours[:, :graph_k + 1]))
 
 
-def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: int = NEIGHBOURS) -> float:
+def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: int = NEIGHBOURS,
+                      sample: int | None = SIGN_SAMPLE) -> float:
     """Share of neighbouring points on one sheet whose normals point opposite ways.
 
     Pairs among the ``k`` nearest neighbours count when their normals are nearly parallel
@@ -108,6 +111,8 @@ def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: 
     ----------
     points, normals : (n, 3) float64
         ``normals`` unit length.
+    sample : int or None
+        The pairs of up to this many random points count (None: all; ``SIGN_SAMPLE``, where it is measured).
 
     Returns
     -------
@@ -116,18 +121,24 @@ def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: 
     """
     from scipy.spatial import cKDTree
 
+    from ..queries import knn_blocks
+
     tree = cKDTree(points) if tree is None else tree
-    _, neighbours = tree.query(points, k=min(k, points.shape[0] - 1) + 1, workers=-1)
-    rows = np.repeat(np.arange(points.shape[0]), neighbours.shape[1] - 1)
-    cols = neighbours[:, 1:].reshape(-1)
-    keep = cols < points.shape[0]
-    rows, cols = rows[keep], cols[keep]
-    step = points[cols] - points[rows]
-    step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
-    dot = np.einsum("ij,ij->i", normals[rows], normals[cols])
-    sheet = ((np.abs(dot) > 0.9) & (np.abs(np.einsum("ij,ij->i", step, normals[rows])) < 0.3)
-             & (np.abs(np.einsum("ij,ij->i", step, normals[cols])) < 0.3))
-    return float(np.mean(dot[sheet] < 0)) if sheet.any() else 0.0
+    n = points.shape[0]
+    sheet_pairs = opposite = 0
+    for block, _, neighbours in knn_blocks(tree, min(k, n - 1) + 1, sample=sample):
+        rows = np.repeat(block, neighbours.shape[1] - 1)
+        cols = neighbours[:, 1:].reshape(-1)
+        keep = cols < n
+        rows, cols = rows[keep], cols[keep]
+        step = points[cols] - points[rows]
+        step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
+        dot = np.einsum("ij,ij->i", normals[rows], normals[cols])
+        sheet = ((np.abs(dot) > 0.9) & (np.abs(np.einsum("ij,ij->i", step, normals[rows])) < 0.3)
+                 & (np.abs(np.einsum("ij,ij->i", step, normals[cols])) < 0.3))
+        sheet_pairs += int(sheet.sum())
+        opposite += int((dot[sheet] < 0).sum())
+    return opposite / sheet_pairs if sheet_pairs else 0.0
 
 
 def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, k: int = NEIGHBOURS) -> np.ndarray:

@@ -228,7 +228,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     # reach past its band with the planes of single points, so they keep the wider kernel.
     per_spacing = TRUSTED_WIDTH_PER_SPACING if trusted and not dense else WIDTH_PER_SPACING
     widths = np.maximum(per_spacing * stats.spacing, WIDTH_PER_NOISE * stats.noise)
-    level = winding_level(framed, normals, point_areas(framed), float(np.median(widths)))
+    level = winding_level(framed, normals, point_areas(framed, tree=tree), float(np.median(widths)))
     if level < -CLOSED_LEVEL:
         # Consistent normals of a closed surface that all point inward (the global sign of a
         # tangent-plane orientation is arbitrary): the winding number reads -1 inside.
