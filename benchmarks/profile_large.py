@@ -1,7 +1,8 @@
 """Seconds and peak memory, stage by stage, of ``voro3d.reconstruct`` on a large oriented cloud.
 
 A dev mesh is sampled area-uniformly into ``--points`` points with its true (face) normals
-(:func:`voro3d.sampling.sample_surface`), handed over as an Open3D ``PointCloud`` with normals,
+(:func:`voro3d.sampling.sample_surface`; ``--normals none``: without, ``--noise``: Gaussian
+noise added), handed over as an Open3D ``PointCloud`` with normals,
 and reconstructed with ``grid="auto"``, as a user with a dense scan would. A child process
 samples this process's resident memory (``/proc/<pid>/statm``) every ``--interval`` seconds; each
 stage's peak is the highest sample inside its time window, and the whole call's is also read
@@ -22,7 +23,7 @@ Each run is stored under its ``--label`` (``before``, ``after`` ...) in
 ``benchmarks/results/large_profile.json``, and ``large_profile.md`` is written from all runs.
 
     python benchmarks/profile_large.py [--mesh organic_bunny.off] [--points 1000000]
-        [--label after] [--evaluate] [--max-gb 18]
+        [--normals true|none] [--noise 0.005] [--label after] [--evaluate] [--max-gb 18]
 """
 from __future__ import annotations
 
@@ -59,6 +60,10 @@ WRAPPED = [
     ("voro3d.pointcloud.poisson.PoissonSurface", "escape"), ("voro3d.pointcloud.poisson.PoissonSurface", "distance"),
     ("voro3d.pointcloud.poisson", "_supported_pieces"),
     ("voro3d.cleaning", "clean"), ("voro3d.snapping", "snap_to_surface"),
+    ("voro3d.pointcloud.normals", "orient_normals"), ("voro3d.pointcloud.normals", "_outside_votes"),
+    ("voro3d.pointcloud.surface", "imls"), ("voro3d.pointcloud.surface.TargetSurface", "inside"),
+    ("voro3d.pointcloud.surface.TargetSurface", "project"), ("voro3d.queries", "point_winding_number"),
+    ("voro3d.pointcloud.surface", "_mesh_field"),
 ]
 
 
@@ -147,23 +152,29 @@ def wrap(spans: list):
         setattr(owner, attribute, wrapped)
 
 
-def make_cloud(mesh_path: Path, n: int, seed: int):
+def make_cloud(mesh_path: Path, n: int, seed: int, *, normals: str = "true", noise: float = 0.0):
+    """The mesh and an Open3D cloud of ``n`` samples of it: with their true normals or none, and
+    Gaussian noise of ``noise`` bounding-box diagonals per coordinate."""
     import open3d as o3d
 
     import voro3d
     from voro3d.sampling import sample_surface
 
     mesh = voro3d.load_mesh(mesh_path)
-    points, normals = sample_surface(mesh, n, seed=seed)
+    points, true_normals = sample_surface(mesh, n, seed=seed)
+    if noise:
+        diagonal = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
+        points = points + np.random.default_rng(seed + 1).normal(scale=noise * diagonal, size=points.shape)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    cloud.normals = o3d.utility.Vector3dVector(normals)
+    if normals == "true":
+        cloud.normals = o3d.utility.Vector3dVector(true_normals)
     return mesh, cloud
 
 
 def profile(args) -> dict:
     import voro3d
 
-    mesh, cloud = make_cloud(DEV / args.mesh, args.points, args.seed)
+    mesh, cloud = make_cloud(DEV / args.mesh, args.points, args.seed, normals=args.normals, noise=args.noise)
     spans: list = []
     infos: list = []
     wrap(spans)
@@ -207,7 +218,7 @@ def profile(args) -> dict:
         row["calls"] += 1
         row["seconds"] = round(row["seconds"] + finish - begin, 2)
         row["peak_gb"] = round(max(row["peak_gb"], memory.peak(begin, finish) / GB), 2)
-    run = dict(label=args.label, mesh=args.mesh, points=args.points, date=time.strftime("%Y-%m-%d %H:%M"),
+    run = dict(label=args.label, mesh=args.mesh, points=args.points, given_normals=args.normals, noise=args.noise, date=time.strftime("%Y-%m-%d %H:%M"),
                seconds=round(end - start, 1), peak_gb=round(total_peak / GB, 2), baseline_gb=round(baseline / GB, 2),
                grid=info.grid, target=info.target, normals=info.normals, faces=len(result.triangles),
                load_average=[round(load[0], 2), round(os.getloadavg()[0], 2)], cpus=os.cpu_count(),
@@ -225,22 +236,26 @@ def write(runs: list, out: Path) -> None:
              "(`benchmarks/profile_large.py`). Peak = highest resident memory sampled in the stage's window "
              "(absolute: the cloud and the imports are in it, `baseline`); the whole call's from `getrusage`. "
              "Timings on a shared 2-core machine are contended (load average at start, end).", "",
-             "| run | mesh | points | grid | seconds | peak GB | baseline GB | load | "
+             "Stage cells: seconds / peak GB.", "",
+             "| run | mesh | points | normals | noise | grid | target | seconds | peak GB | baseline GB | load | "
              + " | ".join(STAGES) + " |",
-             "|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES)]
+             "|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES)]
     for run in runs:
         cells = [f"{run['stages'][s]['seconds']:.1f} s / {run['stages'][s]['peak_gb']:.1f}" if s in run["stages"] else "-"
                  for s in STAGES]
-        lines.append(f"| {run['label']} | {run['mesh']} | {run['points']:,} | {run['grid']} | {run['seconds']:.1f} | "
+        lines.append(f"| {run['label']} | {run['mesh']} | {run['points']:,} | {run.get('given_normals', 'true')} | "
+                     f"{run.get('noise', 0.0):g} | {run['grid']} | {run['target']} | {run['seconds']:.1f} | "
                      f"{run['peak_gb']:.2f} | {run['baseline_gb']:.2f} | {run['load_average'][0]:.1f}, "
                      f"{run['load_average'][1]:.1f} | " + " | ".join(cells) + " |")
     scored = [run for run in runs if "chamfer_x1e5" in run]
     if scored:
-        lines += ["", "| run | mesh | points | faces | CD x1e5 | NC | F1 |", "|---|---|---|---|---|---|---|"]
-        lines += [f"| {r['label']} | {r['mesh']} | {r['points']:,} | {r['faces']:,} | {r['chamfer_x1e5']:.3f} | "
-                  f"{r['nc']:.4f} | {r['f1']:.3f} |" for r in scored]
+        lines += ["", "| run | mesh | points | normals | noise | faces | CD x1e5 | NC | F1 |", "|---|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['label']} | {r['mesh']} | {r['points']:,} | {r.get('given_normals', 'true')} | "
+                  f"{r.get('noise', 0.0):g} | {r['faces']:,} | {r['chamfer_x1e5']:.3f} | {r['nc']:.4f} | {r['f1']:.3f} |"
+                  for r in scored]
     for run in runs:
-        lines += ["", f"## {run['label']}, {run['mesh']}, {run['points']:,} points ({run['date']}): functions", "",
+        lines += ["", f"## {run['label']}, {run['mesh']}, {run['points']:,} points, normals {run.get('given_normals', 'true')}, "
+                  f"noise {run.get('noise', 0.0):g} ({run['date']}): functions", "",
                   "| function | calls | seconds | peak GB |", "|---|---|---|---|"]
         lines += [f"| `{name}` | {row['calls']} | {row['seconds']:.2f} | {row['peak_gb']:.2f} |"
                   for name, row in run["functions"].items()]
@@ -253,6 +268,8 @@ def main():
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--label", default="after")
+    parser.add_argument("--normals", choices=("true", "none"), default="true", help="the cloud's normals")
+    parser.add_argument("--noise", type=float, default=0.0, help="Gaussian noise, in bounding-box diagonals")
     parser.add_argument("--interval", type=float, default=0.01, help="seconds between memory samples")
     parser.add_argument("--max-gb", type=float, default=18.0, help="abort when resident memory passes this")
     parser.add_argument("--evaluate", action="store_true", help="also CD / NC / F1 against the mesh")
@@ -262,7 +279,8 @@ def main():
     print(json.dumps(run), flush=True)
     path = args.out.with_suffix(".json")
     runs = json.loads(path.read_text()) if path.exists() else []
-    runs = [r for r in runs if (r["label"], r["mesh"], r["points"]) != (run["label"], run["mesh"], run["points"])]
+    key = ("label", "mesh", "points", "given_normals", "noise")
+    runs = [r for r in runs if tuple(r.get(k, d) for k, d in zip(key, (None,) * 3 + ("true", 0.0))) != tuple(run[k] for k in key)]
     write(runs + [run], args.out)
     print(f"wrote {args.out.with_suffix('.md')}")
 

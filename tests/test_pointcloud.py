@@ -432,3 +432,23 @@ def test_subsampled_statistics_are_close_and_repeat(sphere_cloud):
     assert abs(sign_disagreement(points, normals, sample=1500) - sign_disagreement(points, normals, sample=None)) < 0.02
     assert cloud_stats(points, sample=1500).noise == part.noise
     assert sign_disagreement(points, normals, sample=1500) == sign_disagreement(points, normals, sample=1500)
+
+
+def test_orientation_weights_in_blocks_give_the_same_normals(sphere_cloud, monkeypatch):
+    import voro3d.pointcloud.normals as normals_module
+    from voro3d.pointcloud import orient_normals
+
+    points, normals = sphere_cloud
+    signs = np.where(np.random.default_rng(9).random(len(points)) < 0.5, -1.0, 1.0)[:, None]
+    whole = orient_normals(points, normals * signs)
+    monkeypatch.setattr(normals_module, "EDGE_BLOCK", 1000)  # 64 blocks of edges
+    assert np.array_equal(orient_normals(points, normals * signs), whole)
+    assert np.mean(np.einsum("ij,ij->i", whole, normals) > 0) > 0.99
+
+
+def test_imls_does_not_depend_on_its_blocks(sphere_cloud):
+    points, normals = sphere_cloud
+    queries = np.random.default_rng(10).uniform(-1.2, 1.2, (3000, 3))
+    whole = imls(points, normals, np.full(len(points), 0.05), queries, agreement=True)
+    parts = imls(points, normals, np.full(len(points), 0.05), queries, agreement=True, block=97)
+    assert all(np.array_equal(a, b) for a, b in zip(whole, parts))

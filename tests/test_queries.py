@@ -333,3 +333,15 @@ def test_point_winding_number_errors():
     with pytest.raises(ValueError, match="at least one"):
         _fitkernel.point_winding_number(points[:0], normals[:0], areas[:0], points)
     assert point_winding_number(points, normals, points[:0]).shape == (0,)
+
+
+def test_neighbour_table_is_one_query_with_int32_indices():
+    from scipy.spatial import cKDTree
+
+    from voro3d.queries import neighbour_table
+
+    points, _ = _cloud(500)
+    tree = cKDTree(points)
+    distance, neighbour = tree.query(points, k=6)
+    found_distance, found = neighbour_table(tree, 6)
+    assert found.dtype == np.int32 and np.array_equal(found, neighbour) and np.array_equal(found_distance, distance)

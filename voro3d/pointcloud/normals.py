@@ -12,6 +12,9 @@ NEIGHBOURS = 16
 # Share of unusable (zero-length, NaN) given normals that is repaired from the neighbours;
 # beyond it the cloud's normals are refused.
 REPAIRABLE_SHARE = 0.01
+# Graph edges whose weights are computed at a time: their (block, 3) float64 temporaries, not the
+# whole graph's (16 edges a point), are alive.
+EDGE_BLOCK = 2**20
 
 
 def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -81,9 +84,11 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     import open3d as o3d
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     n = points.shape[0]
     k = min(k, n - 1)
-    distances, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
+    distances, neighbours = neighbour_table(cKDTree(points), k + 1)
     extent = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
     stacked = int((distances[:, -1] <= 1e-9 * extent).sum())
     if stacked > 0.01 * n:
@@ -162,7 +167,7 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
     points : (n, 3) float64
     normals : (n, 3) float64
         Unit axes; their signs are ignored.
-    neighbours : tuple of ((n, j) float64, (n, j) int64), optional
+    neighbours : tuple of ((n, j) float64, (n, j) int), optional
         The graph: distances to and indices of each point's ``j - 1`` nearest neighbours, itself
         first (a cKDTree query); default the ``k`` nearest.
 
@@ -174,24 +179,22 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
     from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     n = points.shape[0]
     if neighbours is None:
-        neighbours = cKDTree(points).query(points, k=min(k, n - 1) + 1, workers=-1)
+        neighbours = neighbour_table(cKDTree(points), min(k, n - 1) + 1)
     distances, neighbours = neighbours
     graph_k = neighbours.shape[1] - 1
     normals = np.array(normals, np.float64)
-    rows = np.repeat(np.arange(n), graph_k)
+    rows = np.repeat(np.arange(n, dtype=np.int32), graph_k)
     cols = neighbours[:, 1:].reshape(-1)
     keep = cols < n  # duplicate points can leave a row short
     rows, cols = rows[keep], cols[keep]
-    # Edges along the surface are cheap, so the tree never steps across a thin wall (whose two
-    # sides share one plane fit and would get the same sign): an edge pays for turning normals
-    # and for running along them. A zero weight would read as "no edge" to scipy: hence 1e-9.
-    direction = points[cols] - points[rows]
-    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
-    weights = (1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-9
-               + np.abs(np.einsum("ij,ij->i", direction, normals[rows]))
-               + np.abs(np.einsum("ij,ij->i", direction, normals[cols])))
+    weights = np.empty(len(rows))
+    for start in range(0, len(rows), EDGE_BLOCK):
+        weights[start:start + EDGE_BLOCK] = _edge_weights(points, normals, rows[start:start + EDGE_BLOCK],
+                                                         cols[start:start + EDGE_BLOCK])
     tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(n, n)).tocsr())
     pieces, piece = connected_components(tree, directed=False)
     # One breadth-first pass over the whole forest: a virtual node n joined to one point per piece.
@@ -239,6 +242,20 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
                                                     shape=(n, n)), directed=False)
     _flip_patches(normals, vote, np.where(doubtful, group, groups))  # the rest, all +1, never flips
     return normals
+
+
+def _edge_weights(points, normals, rows, cols):
+    """Hoppe's weights of the graph edges ``rows -> cols``.
+
+    Edges along the surface are cheap, so the tree never steps across a thin wall (whose two
+    sides share one plane fit and would get the same sign): an edge pays for turning normals
+    and for running along them. A zero weight would read as "no edge" to scipy: hence 1e-9.
+    """
+    direction = points[cols] - points[rows]
+    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
+    return (1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-9
+            + np.abs(np.einsum("ij,ij->i", direction, normals[rows]))
+            + np.abs(np.einsum("ij,ij->i", direction, normals[cols])))
 
 
 def _flip_patches(normals, vote, patch) -> None:

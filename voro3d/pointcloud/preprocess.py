@@ -77,8 +77,10 @@ def separate_objects(points: np.ndarray, *, min_points: int, margin: float = 0.5
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     n = points.shape[0]
-    distance, neighbour = _neighbour_table(cKDTree(points), min(SPACING_NEIGHBOURS + 1, n))
+    distance, neighbour = neighbour_table(cKDTree(points), min(SPACING_NEIGHBOURS + 1, n))
     piece = _pieces(distance, neighbour, np.ones(n, bool))
     low = np.full((piece.max() + 1, 3), np.inf)
     high = np.full((piece.max() + 1, 3), -np.inf)
@@ -129,13 +131,13 @@ def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTIC
     """
     from scipy.spatial import cKDTree
 
-    from ..queries import knn_blocks
+    from ..queries import knn_blocks, neighbour_table
 
     tree = cKDTree(points) if tree is None else tree
     n = points.shape[0]
     k = min(NOISE_NEIGHBOURS, n - 1)
     near = min(SPACING_NEIGHBOURS, k)
-    distance, neighbour = _neighbour_table(tree, near + 1)
+    distance, neighbour = neighbour_table(tree, near + 1)
     spacing = _neighbour_median(distance[:, 1:].mean(axis=1), neighbour)
     del distance, neighbour
     noise, fine_noise = [], []
@@ -144,18 +146,6 @@ def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTIC
         fine_noise.append(_plane_residuals(points[found[:, :SPACING_NEIGHBOURS + 1]]))
     return CloudStats(spacing=spacing, median_spacing=float(np.median(spacing)), noise=_median_residual(noise),
                       fine_noise=_median_residual(fine_noise))
-
-
-def _neighbour_table(tree, k: int):
-    """(n, k) float64 distances and int32 indices of every point's ``k`` nearest neighbours, itself
-    first: a quarter less memory than one ``tree.query`` (int64), and no float64 gathers alive."""
-    from ..queries import knn_blocks
-
-    distance = np.empty((tree.n, k))
-    neighbour = np.empty((tree.n, k), np.int32)
-    for rows, found_distance, found in knn_blocks(tree, k):
-        distance[rows], neighbour[rows] = found_distance, found
-    return distance, neighbour
 
 
 def _neighbour_median(values: np.ndarray, neighbour: np.ndarray, block: int = 2**17) -> np.ndarray:
@@ -200,8 +190,10 @@ def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, s
     """
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     tree = cKDTree(points) if tree is None else tree
-    distance, neighbour = _neighbour_table(tree, min(STRAY_NEIGHBOURS + 1, points.shape[0]))
+    distance, neighbour = neighbour_table(tree, min(STRAY_NEIGHBOURS + 1, points.shape[0]))
     spacing = distance[:, SPACING_NEIGHBOURS]
     sparse = spacing > sparse_factor * np.median(spacing)
     mean = distance[:, 1:].mean(axis=1)
