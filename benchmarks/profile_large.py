@@ -43,28 +43,25 @@ OUT = ROOT / "benchmarks" / "results" / "large_profile"
 PAGE = os.sysconf("SC_PAGE_SIZE")
 GB = 1024**3
 STAGES = ("read", "separate", "clean", "normals", "surface", "samples", "fit", "mesh", "check")
-# (module, function) wrapped for the per-function table; names that a version lacks are skipped.
-WRAPPED = [
-    ("voro3d.reconstruction", "_read"), ("voro3d.reconstruction", "_check_fit"),
-    ("voro3d.pointcloud", "separate_objects"),
-    ("voro3d.pointcloud", "reconstruct_points"), ("voro3d.pointcloud", "cloud_mesh"),
-    ("voro3d.pointcloud.reconstruct", "merge_duplicates"), ("voro3d.pointcloud.reconstruct", "outlier_mask"),
-    ("voro3d.pointcloud.reconstruct", "cloud_stats"), ("voro3d.pointcloud.reconstruct", "local_dimension"),
-    ("voro3d.pointcloud.reconstruct", "fill_ratio"), ("voro3d.pointcloud.reconstruct", "estimate_normals"),
-    ("voro3d.pointcloud.reconstruct", "orient_normals"), ("voro3d.pointcloud.reconstruct", "sign_disagreement"),
-    ("voro3d.pointcloud.reconstruct", "point_areas"), ("voro3d.pointcloud.reconstruct", "winding_level"),
-    ("voro3d.pointcloud.reconstruct", "imls"), ("voro3d.pointcloud.reconstruct", "poisson_surface"),
-    ("voro3d.pointcloud.reconstruct", "target_surface"), ("voro3d.pointcloud.reconstruct", "_sheet_if_closer"),
-    ("voro3d.pointcloud.reconstruct", "_check_coverage"), ("voro3d.pointcloud.reconstruct", "_fit_samples"),
-    ("voro3d.pointcloud.reconstruct", "_drop_stray_cells"), ("voro3d.fitting", "fit_samples"),
-    ("voro3d.pointcloud.poisson.PoissonSurface", "escape"), ("voro3d.pointcloud.poisson.PoissonSurface", "distance"),
-    ("voro3d.pointcloud.poisson", "_supported_pieces"),
-    ("voro3d.cleaning", "clean"), ("voro3d.snapping", "snap_to_surface"),
-    ("voro3d.pointcloud.normals", "orient_normals"), ("voro3d.pointcloud.normals", "_outside_votes"),
-    ("voro3d.pointcloud.surface", "imls"), ("voro3d.pointcloud.surface.TargetSurface", "inside"),
-    ("voro3d.pointcloud.surface.TargetSurface", "project"), ("voro3d.queries", "point_winding_number"),
-    ("voro3d.pointcloud.surface", "_mesh_field"),
-]
+# Functions wrapped for the per-function table, by the module (or class) they are looked up in;
+# names that a version lacks are skipped.
+WRAPPED = {
+    "voro3d.reconstruction": ["_read", "_check_fit"],
+    "voro3d.pointcloud": ["separate_objects", "reconstruct_points", "cloud_mesh"],
+    "voro3d.pointcloud.reconstruct": ["merge_duplicates", "outlier_mask", "cloud_stats", "local_dimension",
+                                      "fill_ratio", "estimate_normals", "orient_normals", "sign_disagreement",
+                                      "point_areas", "winding_level", "imls", "poisson_surface", "target_surface",
+                                      "_sheet_if_closer", "_check_coverage", "_fit_samples", "_drop_stray_cells"],
+    "voro3d.pointcloud.normals": ["orient_normals", "_outside_votes"],
+    "voro3d.pointcloud.surface": ["imls", "_mesh_field"],
+    "voro3d.pointcloud.surface.TargetSurface": ["inside", "project"],
+    "voro3d.pointcloud.poisson": ["_supported_pieces"],
+    "voro3d.pointcloud.poisson.PoissonSurface": ["escape", "distance"],
+    "voro3d.queries": ["point_winding_number"],
+    "voro3d.fitting": ["fit_samples"],
+    "voro3d.cleaning": ["clean"],
+    "voro3d.snapping": ["snap_to_surface"],
+}
 
 
 # The sampler runs in its own process: a thread would wait for the GIL, which Open3D's Poisson,
@@ -73,13 +70,17 @@ WRAPPED = [
 SAMPLER = """
 import os, signal, sys, time
 pid, interval, limit, page = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3]), os.sysconf("SC_PAGE_SIZE")
+ticks = os.sysconf("SC_CLK_TCK")
 while True:
     try:
         with open(f"/proc/{pid}/statm") as handle:
             value = int(handle.read().split()[1]) * page
+        with open(f"/proc/{pid}/stat") as handle:
+            fields = handle.read().rsplit(")", 1)[1].split()
     except (FileNotFoundError, ProcessLookupError):
         break
-    print(time.perf_counter(), value, flush=True)
+    # utime + stime (fields 14 and 15 of /proc/pid/stat, after the name) in clock ticks.
+    print(time.perf_counter(), value, (int(fields[11]) + int(fields[12])) / ticks, flush=True)
     if value > limit:
         print(f"resident memory {value / 2**30:.1f} GB over the limit: killing {pid}", file=sys.stderr, flush=True)
         os.kill(pid, signal.SIGKILL)
@@ -99,7 +100,7 @@ class Memory:
         self._log = tempfile.TemporaryFile("w+")
         self._process = subprocess.Popen([sys.executable, "-c", SAMPLER, str(os.getpid()), str(interval), str(limit)],
                                          stdout=self._log)
-        self.times, self.values = np.zeros(0), np.zeros(0)
+        self.times, self.values, self.cpu = np.zeros(0), np.zeros(0), np.zeros(0)
 
     @staticmethod
     def now() -> int:
@@ -111,7 +112,11 @@ class Memory:
         self._process.wait()
         self._log.seek(0)
         samples = np.loadtxt(self._log, ndmin=2)
-        self.times, self.values = samples[:, 0], samples[:, 1]
+        self.times, self.values, self.cpu = samples[:, 0], samples[:, 1], samples[:, 2]
+
+    def cpu_seconds(self, start: float, end: float) -> float:
+        """CPU seconds (all threads, user + system) spent between two times, to the sampling interval."""
+        return float(np.interp(end, self.times, self.cpu) - np.interp(start, self.times, self.cpu))
 
     def peak(self, start: float, end: float) -> float:
         """Highest sample in [start, end] (the nearest samples around a window shorter than the interval)."""
@@ -124,10 +129,7 @@ class Memory:
 
 def wrap(spans: list):
     """Wrap the ``WRAPPED`` functions so that every call appends (name, start, end) to ``spans``."""
-    import functools
-
-    for module_name, name in WRAPPED:
-        owner_name, _, attribute = (module_name + "." + name).rpartition(".")
+    for owner_name, names in WRAPPED.items():
         try:
             owner = importlib.import_module(owner_name)
         except ImportError:
@@ -136,20 +138,28 @@ def wrap(spans: list):
                 owner = getattr(importlib.import_module(module), cls)
             except (ImportError, AttributeError):
                 continue
-        function = getattr(owner, attribute, None)
-        if function is None or getattr(function, "_profiled", False):
-            continue
+        for name in names:
+            _wrap_one(owner, name, spans)
 
-        def wrapper(*args, __function=function, __name=name, **kwargs):
-            start = time.perf_counter()
-            try:
-                return __function(*args, **kwargs)
-            finally:
-                spans.append((__name, start, time.perf_counter()))
 
-        wrapped = functools.wraps(function)(wrapper)
-        wrapped._profiled = True
-        setattr(owner, attribute, wrapped)
+def _wrap_one(owner, attribute: str, spans: list) -> None:
+    """Replace ``owner.attribute`` by a wrapper that appends (name, start, end) to ``spans`` per call."""
+    import functools
+
+    function = getattr(owner, attribute, None)
+    if function is None or getattr(function, "_profiled", False):
+        return
+
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            spans.append((attribute, start, time.perf_counter()))
+
+    wrapper._profiled = True
+    setattr(owner, attribute, wrapper)
 
 
 def make_cloud(mesh_path: Path, n: int, seed: int, *, normals: str = "true", noise: float = 0.0):
@@ -211,15 +221,17 @@ def profile(args) -> dict:
         if found:
             windows[stage] = (found[0][1], found[-1][2])
     stages = {stage: dict(seconds=round(windows[stage][1] - windows[stage][0], 2),
+                          cpu_seconds=round(memory.cpu_seconds(*windows[stage]), 1),
                           peak_gb=round(memory.peak(*windows[stage]) / GB, 2)) for stage in STAGES if stage in windows}
     functions = {}
     for name, begin, finish in spans:
-        row = functions.setdefault(name, dict(calls=0, seconds=0.0, peak_gb=0.0))
+        row = functions.setdefault(name, dict(calls=0, seconds=0.0, cpu_seconds=0.0, peak_gb=0.0))
         row["calls"] += 1
         row["seconds"] = round(row["seconds"] + finish - begin, 2)
+        row["cpu_seconds"] = round(row["cpu_seconds"] + memory.cpu_seconds(begin, finish), 1)
         row["peak_gb"] = round(max(row["peak_gb"], memory.peak(begin, finish) / GB), 2)
     run = dict(label=args.label, mesh=args.mesh, points=args.points, given_normals=args.normals, noise=args.noise, date=time.strftime("%Y-%m-%d %H:%M"),
-               seconds=round(end - start, 1), peak_gb=round(total_peak / GB, 2), baseline_gb=round(baseline / GB, 2),
+               seconds=round(end - start, 1), cpu_seconds=round(memory.cpu_seconds(start, end), 1), peak_gb=round(total_peak / GB, 2), baseline_gb=round(baseline / GB, 2),
                grid=info.grid, target=info.target, normals=info.normals, faces=len(result.triangles),
                load_average=[round(load[0], 2), round(os.getloadavg()[0], 2)], cpus=os.cpu_count(),
                stages=stages, functions=functions)
@@ -235,18 +247,35 @@ def write(runs: list, out: Path) -> None:
              "Area-uniform samples of a dev mesh with their true normals, `voro3d.reconstruct(cloud, grid=\"auto\")` "
              "(`benchmarks/profile_large.py`). Peak = highest resident memory sampled in the stage's window "
              "(absolute: the cloud and the imports are in it, `baseline`); the whole call's from `getrusage`. "
-             "Timings on a shared 2-core machine are contended (load average at start, end).", "",
+             "Timings on a shared 2-core machine are contended (load average at start, end); CPU s (user + system, "
+             "all threads, from `/proc`) is the work done, which contention inflates far less.", "",
              "Stage cells: seconds / peak GB.", "",
-             "| run | mesh | points | normals | noise | grid | target | seconds | peak GB | baseline GB | load | "
+             "| run | mesh | points | normals | noise | grid | target | seconds | CPU s | peak GB | baseline GB | load | "
              + " | ".join(STAGES) + " |",
-             "|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES)]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES)]
     for run in runs:
         cells = [f"{run['stages'][s]['seconds']:.1f} s / {run['stages'][s]['peak_gb']:.1f}" if s in run["stages"] else "-"
                  for s in STAGES]
         lines.append(f"| {run['label']} | {run['mesh']} | {run['points']:,} | {run.get('given_normals', 'true')} | "
                      f"{run.get('noise', 0.0):g} | {run['grid']} | {run['target']} | {run['seconds']:.1f} | "
+                     f"{run.get('cpu_seconds', float('nan')):.0f} | "
                      f"{run['peak_gb']:.2f} | {run['baseline_gb']:.2f} | {run['load_average'][0]:.1f}, "
                      f"{run['load_average'][1]:.1f} | " + " | ".join(cells) + " |")
+    key = lambda run: (run["mesh"], run["points"], run.get("given_normals", "true"), run.get("noise", 0.0))
+    pairs = [(before, after) for before in runs if before["label"] == "before"
+             for after in runs if after["label"] == "after" and key(after) == key(before)]
+    for before, after in pairs:
+        lines += ["", f"### Before and after: {before['mesh']}, {before['points']:,} points, normals "
+                  f"{before.get('given_normals', 'true')}, noise {before.get('noise', 0.0):g}", "",
+                  "| stage | before s | before CPU s | before peak GB | after s | after CPU s | after peak GB |",
+                  "|---|---|---|---|---|---|---|"]
+        cpu = lambda row: f"{row['cpu_seconds']:.1f}" if "cpu_seconds" in row else "-"
+        lines += [f"| {stage} | {before['stages'][stage]['seconds']:.1f} | {cpu(before['stages'][stage])} | "
+                  f"{before['stages'][stage]['peak_gb']:.2f} | {after['stages'][stage]['seconds']:.1f} | "
+                  f"{cpu(after['stages'][stage])} | {after['stages'][stage]['peak_gb']:.2f} |"
+                  for stage in STAGES if stage in before["stages"] and stage in after["stages"]]
+        lines.append(f"| **whole call** | {before['seconds']:.1f} | {cpu(before)} | {before['peak_gb']:.2f} | "
+                     f"{after['seconds']:.1f} | {cpu(after)} | {after['peak_gb']:.2f} |")
     scored = [run for run in runs if "chamfer_x1e5" in run]
     if scored:
         lines += ["", "| run | mesh | points | normals | noise | faces | CD x1e5 | NC | F1 |", "|---|---|---|---|---|---|---|---|---|"]
@@ -256,9 +285,9 @@ def write(runs: list, out: Path) -> None:
     for run in runs:
         lines += ["", f"## {run['label']}, {run['mesh']}, {run['points']:,} points, normals {run.get('given_normals', 'true')}, "
                   f"noise {run.get('noise', 0.0):g} ({run['date']}): functions", "",
-                  "| function | calls | seconds | peak GB |", "|---|---|---|---|"]
-        lines += [f"| `{name}` | {row['calls']} | {row['seconds']:.2f} | {row['peak_gb']:.2f} |"
-                  for name, row in run["functions"].items()]
+                  "| function | calls | seconds | CPU s | peak GB |", "|---|---|---|---|---|"]
+        lines += [f"| `{name}` | {row['calls']} | {row['seconds']:.2f} | {row.get('cpu_seconds', float('nan')):.1f} | "
+                  f"{row['peak_gb']:.2f} |" for name, row in run["functions"].items()]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 

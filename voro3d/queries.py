@@ -316,9 +316,9 @@ def knn_blocks(tree, k, *, sample: int | None = None, block: int | None = None):
         block = max(1, KNN_BLOCK_ENTRIES // int(np.size(k) if np.ndim(k) else k))
     order = tree.indices
     if sample is not None and sample < tree.n:
-        chosen = np.zeros(tree.n, bool)
-        chosen[np.random.default_rng(0).choice(tree.n, positive_int(sample, "sample"), replace=False)] = True
-        order = order[chosen[order]]
+        picked = np.zeros(tree.n, bool)
+        picked[np.random.default_rng(0).choice(tree.n, positive_int(sample, "sample"), replace=False)] = True
+        order = order[picked[order]]
     for start in range(0, order.shape[0], positive_int(block, "block")):
         chosen = order[start:start + block]
         distance, neighbour = tree.query(tree.data[chosen], k=k, workers=-1)
@@ -328,8 +328,9 @@ def knn_blocks(tree, k, *, sample: int | None = None, block: int | None = None):
 def spatial_order(points, *, bits: int = 10) -> np.ndarray:
     """Indices that sort ``(n, 3)`` points along a Morton (Z-order) curve of ``2^bits`` cells an axis.
 
-    Queries in this order walk the same kd-tree nodes one after another: :func:`knn_blocks`'s
-    speed-up for points that are not a tree's own (IMLS at 10^6 points).
+    Queries in this order walk the same kd-tree nodes one after another, as :func:`knn_blocks`'s
+    do, for points that are not a tree's own (IMLS of 3*10^5 noisy bunny points at themselves:
+    8.6 s against 9.5 s in the cloud's order, contended; the same values).
     """
     points = np.asarray(points, np.float64)
     if points.shape[0] == 0:
