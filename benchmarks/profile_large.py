@@ -256,9 +256,9 @@ def write(runs: list, out: Path) -> None:
     for run in runs:
         cells = [f"{run['stages'][s]['seconds']:.1f} s / {run['stages'][s]['peak_gb']:.1f}" if s in run["stages"] else "-"
                  for s in STAGES]
+        cpu = f"{run['cpu_seconds']:.0f}" if "cpu_seconds" in run else "-"
         lines.append(f"| {run['label']} | {run['mesh']} | {run['points']:,} | {run.get('given_normals', 'true')} | "
-                     f"{run.get('noise', 0.0):g} | {run['grid']} | {run['target']} | {run['seconds']:.1f} | "
-                     f"{run.get('cpu_seconds', float('nan')):.0f} | "
+                     f"{run.get('noise', 0.0):g} | {run['grid']} | {run['target']} | {run['seconds']:.1f} | {cpu} | "
                      f"{run['peak_gb']:.2f} | {run['baseline_gb']:.2f} | {run['load_average'][0]:.1f}, "
                      f"{run['load_average'][1]:.1f} | " + " | ".join(cells) + " |")
     key = lambda run: (run["mesh"], run["points"], run.get("given_normals", "true"), run.get("noise", 0.0))
@@ -286,8 +286,9 @@ def write(runs: list, out: Path) -> None:
         lines += ["", f"## {run['label']}, {run['mesh']}, {run['points']:,} points, normals {run.get('given_normals', 'true')}, "
                   f"noise {run.get('noise', 0.0):g} ({run['date']}): functions", "",
                   "| function | calls | seconds | CPU s | peak GB |", "|---|---|---|---|---|"]
-        lines += [f"| `{name}` | {row['calls']} | {row['seconds']:.2f} | {row.get('cpu_seconds', float('nan')):.1f} | "
-                  f"{row['peak_gb']:.2f} |" for name, row in run["functions"].items()]
+        lines += [f"| `{name}` | {row['calls']} | {row['seconds']:.2f} | "
+                  + (f"{row['cpu_seconds']:.1f}" if "cpu_seconds" in row else "-") + f" | {row['peak_gb']:.2f} |"
+                  for name, row in run["functions"].items()]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
