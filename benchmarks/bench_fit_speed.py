@@ -84,8 +84,8 @@ def main():
                     del row["package"]
                     rows.append(row)
                     print(row, flush=True)
-    machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "baseline": str(args.baseline),
-               "candidate": str(args.candidate)}
+    machine = {"platform": platform.platform(), "cpus": os.cpu_count(), "baseline": _shown(args.baseline),
+               "candidate": _shown(args.candidate)}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "fit_speed.json").write_text(json.dumps({"machine": machine, "rows": rows}, indent=1))
     text = ("# Whole fit: a candidate vs a baseline checkout, interleaved\n\n"
@@ -93,6 +93,13 @@ def main():
             "`load_before` is the 1-minute load average before each fit.\n\n" + markdown(rows))
     (args.out / "fit_speed.md").write_text(text)
     print(text)
+
+
+def _shown(path: Path) -> str:
+    """A checkout as the results name it: relative to this repository (``.`` for itself), else by its folder name,
+    never a path of the machine that ran it."""
+    path = path.resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else f"checkout {path.name}"
 
 
 if __name__ == "__main__":

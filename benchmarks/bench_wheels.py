@@ -32,7 +32,9 @@ from voro3d.shapes import example_mesh
 mesh = example_mesh()
 start = time.perf_counter()
 shape, info = voro3d.fit(mesh, 32)
-print(json.dumps(dict(package=voro3d.__file__, seconds=time.perf_counter() - start,
+# Which voro3d ran, without a path of this machine: an installed wheel or the repository's editable one.
+package = "wheel (site-packages)" if "site-packages" in voro3d.__file__ else "editable (repository)"
+print(json.dumps(dict(package=package, seconds=time.perf_counter() - start,
                       optimisation=info.optimisation_seconds, loss=info.final_loss)))
 """
 

@@ -15,6 +15,8 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include "voro3d_parallel.h"
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -73,26 +75,7 @@ struct Failure {
   bool bad_index = false;
 };
 
-// Runs body(worker, item) for every item in [0, items) on up to `threads` threads, the caller
-// being worker 0; items are handed out in order from a shared counter, so a thread the machine
-// runs less often simply takes fewer. body must not throw.
-template <typename Body>
-void parallel_for(int threads, std::int64_t items, const Body& body) {
-  std::atomic<std::int64_t> next{0};
-  auto work = [&](int worker) {
-    for (std::int64_t item = next++; item < items; item = next++) body(worker, item);
-  };
-  std::vector<std::thread> helpers;
-  for (int worker = 1; worker < std::min<std::int64_t>(threads, items); ++worker) {
-    try {
-      helpers.emplace_back(work, worker);
-    } catch (const std::system_error&) {
-      break;  // no more threads to be had: the started ones and the caller do the rest
-    }
-  }
-  work(0);
-  for (auto& helper : helpers) helper.join();
-}
+using voro3d::parallel_for;
 
 // Point-major double copy of the generators, checked finite: one cache line per generator read
 // instead of three strided ones.
@@ -513,8 +496,11 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
 
 }  // namespace
 
+void register_winding(py::module_& module);  // voro3d_winding.cpp
+
 PYBIND11_MODULE(_fitkernel, module) {
-  module.doc() = "The VoroMesh fit's inner step on CPU: VoroLoss and its gradient in one threaded pass.";
+  module.doc() = "The VoroMesh fit's inner step on CPU: VoroLoss and its gradient in one threaded pass; point winding numbers.";
+  register_winding(module);
   module.def("voroloss", &voroloss, py::arg("samples"), py::arg("generators"), py::arg("candidates"),
              py::arg("grad") = py::none(), py::arg("threads") = 1,
              R"doc(VoroLoss of samples over their candidate generators, and optionally its gradient.

@@ -130,3 +130,11 @@ def test_summary_keeps_short_tables_and_drops_long_ones(tmp_path, monkeypatch):
     assert section.startswith("## demo: A demo (2026)")
     assert "| 1 | 2 |" in section and "| s0 | 0 |" not in section
     assert "[demo.json](results/demo.json)" in section and "1 longer table" in section
+
+
+def test_results_name_no_path_of_the_machine_that_ran_them():
+    """Results files name inputs relative to the repository (or by name), never as /work/..., /tmp/..., /root/..."""
+    results = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+    machine_path = re.compile(r'"(/work|/tmp|/root|/home)/')
+    offending = [path.name for path in sorted(results.glob("*.json")) if machine_path.search(path.read_text())]
+    assert not offending, offending

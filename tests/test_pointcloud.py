@@ -370,3 +370,88 @@ def test_walls_thinner_than_the_spacing_get_the_sheet_target():
 
     under_the_lid = np.array([[0.0, 0.0, 0.2]])  # the lid spans z 0.37-0.4, the hollow below it
     assert not InsideOutside(out).occupancy(under_the_lid).any()
+
+
+# -- chunked and subsampled statistics equal the one-query ones ------------------------------------
+
+def _one_query_stats(points, normals):
+    """The statistics as one full kNN query of every point computes them (the reference)."""
+    from scipy.spatial import cKDTree
+
+    distance, neighbour = cKDTree(points).query(points, k=25)
+    own = distance[:, 1:9].mean(axis=1)
+    spacing = np.median(own[neighbour[:, :9]], axis=1)
+
+    def residual(hoods):
+        local = hoods - hoods.mean(axis=1, keepdims=True)
+        return float(np.sqrt(max(np.median(np.linalg.eigvalsh(np.einsum("nki,nkj->nij", local, local)
+                                                               / hoods.shape[1])[:, 0]), 0.0)))
+
+    far, _ = cKDTree(points).query(points, k=129)
+    dimension = float(np.median(np.log(4.0) / np.log(np.maximum(far[:, 128] / far[:, 32], 1.0 + 1e-12))))
+    rows = np.repeat(np.arange(len(points)), 16)
+    cols = neighbour[:, 1:17].reshape(-1)
+    step = points[cols] - points[rows]
+    step /= np.linalg.norm(step, axis=1, keepdims=True)
+    dot = np.einsum("ij,ij->i", normals[rows], normals[cols])
+    sheet = ((np.abs(dot) > 0.9) & (np.abs(np.einsum("ij,ij->i", step, normals[rows])) < 0.3)
+             & (np.abs(np.einsum("ij,ij->i", step, normals[cols])) < 0.3))
+    return dict(spacing=spacing, noise=residual(points[neighbour]), fine=residual(points[neighbour[:, :9]]),
+                dimension=dimension, sign=float(np.mean(dot[sheet] < 0)))
+
+
+def test_chunked_statistics_equal_one_query(sphere_cloud, monkeypatch):
+    import voro3d.queries
+    from voro3d.pointcloud import sign_disagreement
+
+    points, normals = sphere_cloud
+    rng = np.random.default_rng(7)
+    points = np.vstack([points + rng.normal(scale=0.01, size=points.shape), rng.uniform(-1.5, 1.5, (60, 3))])
+    normals = np.vstack([normals, np.tile([0.0, 0.0, 1.0], (60, 1))])
+    normals[rng.random(len(normals)) < 0.2] *= -1
+    expected = _one_query_stats(points, normals)
+    mask = outlier_mask(points)
+    monkeypatch.setattr(voro3d.queries, "KNN_BLOCK_ENTRIES", 1000)  # dozens of blocks
+    stats = cloud_stats(points, sample=None)
+    assert np.array_equal(stats.spacing, expected["spacing"])
+    assert stats.noise == expected["noise"] and stats.fine_noise == expected["fine"]
+    assert local_dimension(points, sample=None) == expected["dimension"]
+    assert sign_disagreement(points, normals, sample=None) == expected["sign"]
+    assert np.array_equal(outlier_mask(points), mask) and mask[-60:].mean() > 0.7
+
+
+def test_subsampled_statistics_are_close_and_repeat(sphere_cloud):
+    from voro3d.pointcloud import sign_disagreement
+
+    points, normals = sphere_cloud
+    rng = np.random.default_rng(8)
+    points = points + rng.normal(scale=0.01, size=points.shape)
+    normals = np.where(rng.random((len(points), 1)) < 0.2, -normals, normals)
+    full = cloud_stats(points, sample=None)
+    part = cloud_stats(points, sample=1500)
+    assert np.array_equal(part.spacing, full.spacing)
+    assert abs(part.noise / full.noise - 1) < 0.05 and abs(part.fine_noise / full.fine_noise - 1) < 0.05
+    assert abs(local_dimension(points, sample=1500) - local_dimension(points, sample=None)) < 0.03
+    assert abs(sign_disagreement(points, normals, sample=1500) - sign_disagreement(points, normals, sample=None)) < 0.02
+    assert cloud_stats(points, sample=1500).noise == part.noise
+    assert sign_disagreement(points, normals, sample=1500) == sign_disagreement(points, normals, sample=1500)
+
+
+def test_orientation_weights_in_blocks_give_the_same_normals(sphere_cloud, monkeypatch):
+    import voro3d.pointcloud.normals as normals_module
+    from voro3d.pointcloud import orient_normals
+
+    points, normals = sphere_cloud
+    signs = np.where(np.random.default_rng(9).random(len(points)) < 0.5, -1.0, 1.0)[:, None]
+    whole = orient_normals(points, normals * signs)
+    monkeypatch.setattr(normals_module, "EDGE_BLOCK", 1000)  # 64 blocks of edges
+    assert np.array_equal(orient_normals(points, normals * signs), whole)
+    assert np.mean(np.einsum("ij,ij->i", whole, normals) > 0) > 0.99
+
+
+def test_imls_does_not_depend_on_its_blocks(sphere_cloud):
+    points, normals = sphere_cloud
+    queries = np.random.default_rng(10).uniform(-1.2, 1.2, (3000, 3))
+    whole = imls(points, normals, np.full(len(points), 0.05), queries, agreement=True)
+    parts = imls(points, normals, np.full(len(points), 0.05), queries, agreement=True, block=97)
+    assert all(np.array_equal(a, b) for a, b in zip(whole, parts))

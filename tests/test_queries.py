@@ -243,3 +243,107 @@ def test_inside_out_closed_mesh_keeps_its_inside(sphere):
     far = np.abs(np.linalg.norm(points, axis=1) - 0.5) > 0.01
     inverted = InsideOutside((vertices, triangles[:, ::-1]))
     np.testing.assert_array_equal(inverted.occupancy(points)[far], InsideOutside(sphere).occupancy(points)[far])
+
+
+# -- chunked kNN queries and point-cloud winding numbers -------------------------------------------
+
+def _cloud(n=3000, seed=0):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(n, 3))
+    points /= np.linalg.norm(points, axis=1, keepdims=True)
+    return points, points.copy()
+
+
+def test_knn_blocks_answer_one_query_in_any_block_size():
+    from scipy.spatial import cKDTree
+
+    from voro3d.queries import knn_blocks
+
+    points, _ = _cloud()
+    tree = cKDTree(points)
+    distance, neighbour = tree.query(points, k=9)
+    for block in (1, 7, 500, None):
+        seen = np.zeros(len(points), int)
+        for rows, found_distance, found in knn_blocks(tree, 9, block=block):
+            seen[rows] += 1
+            assert np.array_equal(found, neighbour[rows]) and np.array_equal(found_distance, distance[rows])
+        assert (seen == 1).all()
+    rows = np.concatenate([rows for rows, _, _ in knn_blocks(tree, 9, sample=400, block=64)])
+    again = np.concatenate([rows for rows, _, _ in knn_blocks(tree, 9, sample=400)])
+    assert len(np.unique(rows)) == 400 and np.array_equal(np.sort(rows), np.sort(again))
+    with pytest.raises(ValueError, match="block"):
+        next(knn_blocks(tree, 9, block=0))
+
+
+def test_point_areas_do_not_depend_on_the_block():
+    from scipy.spatial import cKDTree
+
+    from voro3d.queries import point_areas
+
+    points, _ = _cloud()
+    distance, _ = cKDTree(points).query(points, k=17)
+    expected = np.pi * distance[:, -1] ** 2 / 16
+    assert np.array_equal(point_areas(points, block=100), expected)
+    assert np.array_equal(point_areas(points, tree=cKDTree(points)), expected)
+
+
+def _exact_point_winding(points, normals, areas, queries):
+    difference = points[None] - queries[:, None]
+    length = np.linalg.norm(difference, axis=2)
+    terms = np.einsum("qni,ni->qn", difference, areas[:, None] * normals) / np.where(length > 0, length, np.inf) ** 3
+    return terms.sum(axis=1) / (4 * np.pi)
+
+
+def test_point_winding_number_is_the_exact_sum_within_its_expansion_error():
+    from voro3d import _fitkernel
+    from voro3d.queries import point_areas, point_winding_number
+
+    points, normals = _cloud(4000)
+    areas = point_areas(points)
+    rng = np.random.default_rng(1)
+    queries = np.vstack([rng.uniform(-1.5, 1.5, (300, 3)), points[:100] * 0.97, points[:100] * 1.03, points[:20]])
+    exact = _exact_point_winding(points, normals, areas, queries)
+    fast = point_winding_number(points, normals, queries, areas=areas)
+    assert np.abs(fast - exact).max() < 0.01
+    assert np.abs(_fitkernel.point_winding_number(points, normals, areas, queries, beta=1e9) - exact).max() < 1e-10
+    # Inside a closed sampled sphere about 1, outside about 0, on it about a half.
+    assert np.allclose(fast[np.linalg.norm(queries, axis=1) < 0.9], 1.0, atol=0.05)
+    assert np.allclose(fast[np.linalg.norm(queries, axis=1) > 1.1], 0.0, atol=0.05)
+    assert np.allclose(fast[-20:], 0.5, atol=0.1)
+    one = _fitkernel.point_winding_number(points, normals, areas, queries, threads=1)
+    assert np.array_equal(one, _fitkernel.point_winding_number(points, normals, areas, queries, threads=3))
+
+
+def test_point_winding_number_errors():
+    from voro3d import _fitkernel
+    from voro3d.queries import point_winding_number
+
+    points, normals = _cloud(100)
+    areas = np.ones(100)
+    with pytest.raises(ValueError, match="normals"):
+        point_winding_number(points, normals[:50], points)
+    with pytest.raises(ValueError, match="normals"):
+        _fitkernel.point_winding_number(points, normals[:50], areas, points)
+    with pytest.raises(ValueError, match="areas"):
+        _fitkernel.point_winding_number(points, normals, areas[:3], points)
+    with pytest.raises(ValueError, match="queries"):
+        _fitkernel.point_winding_number(points, normals, areas, points[:, :2])
+    with pytest.raises(ValueError, match="beta"):
+        _fitkernel.point_winding_number(points, normals, areas, points, beta=1.0)
+    with pytest.raises(ValueError, match="threads"):
+        _fitkernel.point_winding_number(points, normals, areas, points, threads=0)
+    with pytest.raises(ValueError, match="at least one"):
+        _fitkernel.point_winding_number(points[:0], normals[:0], areas[:0], points)
+    assert point_winding_number(points, normals, points[:0]).shape == (0,)
+
+
+def test_neighbour_table_is_one_query_with_int32_indices():
+    from scipy.spatial import cKDTree
+
+    from voro3d.queries import neighbour_table
+
+    points, _ = _cloud(500)
+    tree = cKDTree(points)
+    distance, neighbour = tree.query(points, k=6)
+    found_distance, found = neighbour_table(tree, 6)
+    assert found.dtype == np.int32 and np.array_equal(found, neighbour) and np.array_equal(found_distance, distance)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .tuning import SIGN_SAMPLE
+
 __all__ = ["estimate_normals", "orient_normals", "sign_disagreement", "repair_normals"]
 
 # Neighbours for normal estimation and orientation.
@@ -10,6 +12,9 @@ NEIGHBOURS = 16
 # Share of unusable (zero-length, NaN) given normals that is repaired from the neighbours;
 # beyond it the cloud's normals are refused.
 REPAIRABLE_SHARE = 0.01
+# Graph edges whose weights are computed at a time: their (block, 3) float64 temporaries, not the
+# whole graph's (16 edges a point), are alive.
+EDGE_BLOCK = 2**20
 
 
 def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -79,9 +84,11 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     import open3d as o3d
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     n = points.shape[0]
     k = min(k, n - 1)
-    distances, neighbours = cKDTree(points).query(points, k=k + 1, workers=-1)
+    distances, neighbours = neighbour_table(cKDTree(points), k + 1)
     extent = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
     stacked = int((distances[:, -1] <= 1e-9 * extent).sum())
     if stacked > 0.01 * n:
@@ -96,7 +103,8 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     return orient_normals(points, normals, neighbours=(distances[:, :graph_k + 1], neighbours[:, :graph_k + 1]))
 
 
-def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: int = NEIGHBOURS) -> float:
+def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: int = NEIGHBOURS,
+                      sample: int | None = SIGN_SAMPLE) -> float:
     """Share of neighbouring points on one sheet whose normals point opposite ways.
 
     Pairs among the ``k`` nearest neighbours count when their normals are nearly parallel
@@ -108,6 +116,8 @@ def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: 
     ----------
     points, normals : (n, 3) float64
         ``normals`` unit length.
+    sample : int or None
+        The pairs of up to this many random points count (None: all; ``SIGN_SAMPLE``, where it is measured).
 
     Returns
     -------
@@ -116,18 +126,24 @@ def sign_disagreement(points: np.ndarray, normals: np.ndarray, *, tree=None, k: 
     """
     from scipy.spatial import cKDTree
 
+    from ..queries import knn_blocks
+
     tree = cKDTree(points) if tree is None else tree
-    _, neighbours = tree.query(points, k=min(k, points.shape[0] - 1) + 1, workers=-1)
-    rows = np.repeat(np.arange(points.shape[0]), neighbours.shape[1] - 1)
-    cols = neighbours[:, 1:].reshape(-1)
-    keep = cols < points.shape[0]
-    rows, cols = rows[keep], cols[keep]
-    step = points[cols] - points[rows]
-    step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
-    dot = np.einsum("ij,ij->i", normals[rows], normals[cols])
-    sheet = ((np.abs(dot) > 0.9) & (np.abs(np.einsum("ij,ij->i", step, normals[rows])) < 0.3)
-             & (np.abs(np.einsum("ij,ij->i", step, normals[cols])) < 0.3))
-    return float(np.mean(dot[sheet] < 0)) if sheet.any() else 0.0
+    n = points.shape[0]
+    sheet_pairs = opposite = 0
+    for block, _, neighbours in knn_blocks(tree, min(k, n - 1) + 1, sample=sample):
+        rows = np.repeat(block, neighbours.shape[1] - 1)
+        cols = neighbours[:, 1:].reshape(-1)
+        keep = cols < n
+        rows, cols = rows[keep], cols[keep]
+        step = points[cols] - points[rows]
+        step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
+        dot = np.einsum("ij,ij->i", normals[rows], normals[cols])
+        sheet = ((np.abs(dot) > 0.9) & (np.abs(np.einsum("ij,ij->i", step, normals[rows])) < 0.3)
+                 & (np.abs(np.einsum("ij,ij->i", step, normals[cols])) < 0.3))
+        sheet_pairs += int(sheet.sum())
+        opposite += int((dot[sheet] < 0).sum())
+    return opposite / sheet_pairs if sheet_pairs else 0.0
 
 
 def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, k: int = NEIGHBOURS) -> np.ndarray:
@@ -151,7 +167,7 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
     points : (n, 3) float64
     normals : (n, 3) float64
         Unit axes; their signs are ignored.
-    neighbours : tuple of ((n, j) float64, (n, j) int64), optional
+    neighbours : tuple of ((n, j) float64, (n, j) int), optional
         The graph: distances to and indices of each point's ``j - 1`` nearest neighbours, itself
         first (a cKDTree query); default the ``k`` nearest.
 
@@ -163,24 +179,22 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
     from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     n = points.shape[0]
     if neighbours is None:
-        neighbours = cKDTree(points).query(points, k=min(k, n - 1) + 1, workers=-1)
+        neighbours = neighbour_table(cKDTree(points), min(k, n - 1) + 1)
     distances, neighbours = neighbours
     graph_k = neighbours.shape[1] - 1
     normals = np.array(normals, np.float64)
-    rows = np.repeat(np.arange(n), graph_k)
+    rows = np.repeat(np.arange(n, dtype=np.int32), graph_k)
     cols = neighbours[:, 1:].reshape(-1)
     keep = cols < n  # duplicate points can leave a row short
     rows, cols = rows[keep], cols[keep]
-    # Edges along the surface are cheap, so the tree never steps across a thin wall (whose two
-    # sides share one plane fit and would get the same sign): an edge pays for turning normals
-    # and for running along them. A zero weight would read as "no edge" to scipy: hence 1e-9.
-    direction = points[cols] - points[rows]
-    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
-    weights = (1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-9
-               + np.abs(np.einsum("ij,ij->i", direction, normals[rows]))
-               + np.abs(np.einsum("ij,ij->i", direction, normals[cols])))
+    weights = np.empty(len(rows))
+    for start in range(0, len(rows), EDGE_BLOCK):
+        weights[start:start + EDGE_BLOCK] = _edge_weights(points, normals, rows[start:start + EDGE_BLOCK],
+                                                         cols[start:start + EDGE_BLOCK])
     tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(n, n)).tocsr())
     pieces, piece = connected_components(tree, directed=False)
     # One breadth-first pass over the whole forest: a virtual node n joined to one point per piece.
@@ -228,6 +242,20 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
                                                     shape=(n, n)), directed=False)
     _flip_patches(normals, vote, np.where(doubtful, group, groups))  # the rest, all +1, never flips
     return normals
+
+
+def _edge_weights(points, normals, rows, cols):
+    """Hoppe's weights of the graph edges ``rows -> cols``.
+
+    Edges along the surface are cheap, so the tree never steps across a thin wall (whose two
+    sides share one plane fit and would get the same sign): an edge pays for turning normals
+    and for running along them. A zero weight would read as "no edge" to scipy: hence 1e-9.
+    """
+    direction = points[cols] - points[rows]
+    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-300)[:, None]
+    return (1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-9
+            + np.abs(np.einsum("ij,ij->i", direction, normals[rows]))
+            + np.abs(np.einsum("ij,ij->i", direction, normals[cols])))
 
 
 def _flip_patches(normals, vote, patch) -> None:

@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .tuning import STATISTICS_SAMPLE
+
 __all__ = ["CloudStats", "cloud_stats", "outlier_mask", "local_dimension", "fill_ratio", "merge_duplicates",
            "separate_objects"]
 
@@ -75,8 +77,10 @@ def separate_objects(points: np.ndarray, *, min_points: int, margin: float = 0.5
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     n = points.shape[0]
-    distance, neighbour = cKDTree(points).query(points, k=min(SPACING_NEIGHBOURS + 1, n), workers=-1)
+    distance, neighbour = neighbour_table(cKDTree(points), min(SPACING_NEIGHBOURS + 1, n))
     piece = _pieces(distance, neighbour, np.ones(n, bool))
     low = np.full((piece.max() + 1, 3), np.inf)
     high = np.full((piece.max() + 1, 3), -np.inf)
@@ -119,24 +123,48 @@ class CloudStats:
     fine_noise: float
 
 
-def cloud_stats(points: np.ndarray, *, tree=None) -> CloudStats:
-    """Local spacing and noise level of ``(n, 3)`` points (see :class:`CloudStats`)."""
+def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTICS_SAMPLE) -> CloudStats:
+    """Local spacing and noise level of ``(n, 3)`` points (see :class:`CloudStats`).
+
+    The spacing is every point's; the noise is a median over the neighbourhoods of up to
+    ``sample`` random points (None: all; ``STATISTICS_SAMPLE``, where it is measured).
+    """
     from scipy.spatial import cKDTree
 
+    from ..queries import knn_blocks, neighbour_table
+
     tree = cKDTree(points) if tree is None else tree
-    k = min(NOISE_NEIGHBOURS, points.shape[0] - 1)
-    distance, neighbour = tree.query(points, k=k + 1, workers=-1)
-    own = distance[:, 1:SPACING_NEIGHBOURS + 1].mean(axis=1)
-    spacing = np.median(own[neighbour[:, :SPACING_NEIGHBOURS + 1]], axis=1)
-    return CloudStats(spacing=spacing, median_spacing=float(np.median(spacing)), noise=_plane_residual(points[neighbour]),
-                      fine_noise=_plane_residual(points[neighbour[:, :SPACING_NEIGHBOURS + 1]]))
+    n = points.shape[0]
+    k = min(NOISE_NEIGHBOURS, n - 1)
+    near = min(SPACING_NEIGHBOURS, k)
+    distance, neighbour = neighbour_table(tree, near + 1)
+    spacing = _neighbour_median(distance[:, 1:].mean(axis=1), neighbour)
+    del distance, neighbour
+    noise, fine_noise = [], []
+    for _, _, found in knn_blocks(tree, k + 1, sample=sample):
+        noise.append(_plane_residuals(points[found]))
+        fine_noise.append(_plane_residuals(points[found[:, :SPACING_NEIGHBOURS + 1]]))
+    return CloudStats(spacing=spacing, median_spacing=float(np.median(spacing)), noise=_median_residual(noise),
+                      fine_noise=_median_residual(fine_noise))
 
 
-def _plane_residual(neighbourhoods: np.ndarray) -> float:
-    """Median over (n, k, 3) neighbourhoods of the RMS distance to their best-fit plane."""
+def _neighbour_median(values: np.ndarray, neighbour: np.ndarray, block: int = 2**17) -> np.ndarray:
+    """(n,) median of ``values`` over each row of ``neighbour`` (n, k), a block of rows at a time
+    (the gathered (n, k) float64 table is never whole)."""
+    return np.concatenate([np.median(values[neighbour[start:start + block]], axis=1)
+                           for start in range(0, len(neighbour), block)])
+
+
+def _plane_residuals(neighbourhoods: np.ndarray) -> np.ndarray:
+    """(n,) smallest covariance eigenvalue of (n, k, 3) neighbourhoods: the squared RMS distance to their best-fit plane."""
     local = neighbourhoods - neighbourhoods.mean(axis=1, keepdims=True)
     covariance = np.einsum("nki,nkj->nij", local, local) / neighbourhoods.shape[1]
-    return float(np.sqrt(max(np.median(np.linalg.eigvalsh(covariance)[:, 0]), 0.0)))
+    return np.linalg.eigvalsh(covariance)[:, 0]
+
+
+def _median_residual(blocks: list) -> float:
+    """Median RMS plane distance over the blocks of :func:`_plane_residuals`."""
+    return float(np.sqrt(max(np.median(np.concatenate(blocks)), 0.0)))
 
 
 def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, stray_factor: float = 2.0) -> np.ndarray:
@@ -162,14 +190,16 @@ def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, s
     """
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     tree = cKDTree(points) if tree is None else tree
-    distance, neighbour = tree.query(points, k=min(STRAY_NEIGHBOURS + 1, points.shape[0]), workers=-1)
+    distance, neighbour = neighbour_table(tree, min(STRAY_NEIGHBOURS + 1, points.shape[0]))
     spacing = distance[:, SPACING_NEIGHBOURS]
     sparse = spacing > sparse_factor * np.median(spacing)
     mean = distance[:, 1:].mean(axis=1)
-    stray = mean > stray_factor * np.median(mean[neighbour[:, 1:]], axis=1)
-    return sparse | stray | _small_clusters(distance[:, :SPACING_NEIGHBOURS + 1], neighbour[:, :SPACING_NEIGHBOURS + 1],
-                                            ~(sparse | stray))
+    distance = distance[:, :SPACING_NEIGHBOURS + 1].copy()  # all _small_clusters needs
+    stray = mean > stray_factor * _neighbour_median(mean, neighbour[:, 1:])
+    return sparse | stray | _small_clusters(distance, neighbour[:, :SPACING_NEIGHBOURS + 1], ~(sparse | stray))
 
 
 def _small_clusters(distance, neighbour, candidate, *, reach: float = 4.0, share: float = 0.01):
@@ -188,7 +218,7 @@ def _pieces(distance, neighbour, candidate, *, reach: float = 4.0) -> np.ndarray
     from scipy.sparse.csgraph import connected_components
 
     n = distance.shape[0]
-    rows = np.repeat(np.arange(n), distance.shape[1] - 1)
+    rows = np.repeat(np.arange(n, dtype=np.int32), distance.shape[1] - 1)
     cols = neighbour[:, 1:].reshape(-1)
     near = (distance[:, 1:].reshape(-1) <= reach * np.median(distance[:, -1])) & candidate[rows] & candidate[cols]
     return connected_components(coo_matrix((np.ones(int(near.sum())), (rows[near], cols[near])), shape=(n, n)),
@@ -210,15 +240,17 @@ def fill_ratio(points: np.ndarray, spacing: float) -> float:
     return points.shape[0] * spacing**3 / volume if volume > 0 else float("inf")
 
 
-def local_dimension(points: np.ndarray, *, tree=None) -> float:
+def local_dimension(points: np.ndarray, *, tree=None, sample: int | None = STATISTICS_SAMPLE) -> float:
     """Median growth exponent of the neighbourhoods: ``log 4 / log(d_4k / d_k)`` with ``d_k`` the
     distance to the ``k``-th neighbour (k = 32, or fewer for small clouds): 2 on a surface, 3 in
-    a volume."""
+    a volume. The median is over up to ``sample`` random points (None: all)."""
     from scipy.spatial import cKDTree
+
+    from ..queries import knn_blocks
 
     tree = cKDTree(points) if tree is None else tree
     far = min(128, points.shape[0] - 1)
     near = max(far // 4, 1)
-    distance, _ = tree.query(points, k=far + 1, workers=-1)
-    ratio = distance[:, far] / np.maximum(distance[:, near], 1e-300)
+    ratio = np.concatenate([distance[:, 1] / np.maximum(distance[:, 0], 1e-300)
+                            for _, distance, _ in knn_blocks(tree, [near + 1, far + 1], sample=sample)])
     return float(np.median(np.log(far / near) / np.log(np.maximum(ratio, 1.0 + 1e-12))))

@@ -236,13 +236,18 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
     """
     from scipy.spatial import cKDTree
 
+    from ..queries import spatial_order
+
     tree = cKDTree(points) if tree is None else tree
     k = min(k, points.shape[0])
     value = np.empty(queries.shape[0])
     gradient = np.empty((queries.shape[0], 3))
     length = np.empty(queries.shape[0])
+    # Blocks of nearby queries share kd-tree nodes and gathered rows (spatial_order).
+    order = spatial_order(queries)
     for start in range(0, queries.shape[0], block):
-        x = queries[start:start + block]
+        rows = order[start:start + block]
+        x = queries[rows]
         distance, neighbour = tree.query(x, k=k, workers=-1)
         h2 = widths[neighbour] ** 2
         log_weight = -(distance**2) / h2
@@ -254,11 +259,11 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
         for _ in range(ROBUST_PASSES):
             weight = spatial * np.exp(-((planes - f[:, None]) ** 2) / h2) + 1e-300
             f = np.einsum("qk,qk->q", weight, planes) / weight.sum(axis=1)
-        value[start:start + block] = f
+        value[rows] = f
         mean = np.einsum("qk,qkj->qj", weight, normals[neighbour])
         norm = np.linalg.norm(mean, axis=1)
-        gradient[start:start + block] = mean / np.maximum(norm, 1e-12)[:, None]
-        length[start:start + block] = norm / weight.sum(axis=1)
+        gradient[rows] = mean / np.maximum(norm, 1e-12)[:, None]
+        length[rows] = norm / weight.sum(axis=1)
     return (value, gradient, length) if agreement else (value, gradient)
 
 
