@@ -2,7 +2,8 @@
 
 For each dev mesh, ``--points`` area-uniform samples with their true (face) normals
 (:func:`voro3d.sampling.sample_surface`, seeded) are written once; every method then runs in a
-process of its own on the same file, so that its peak resident memory (``getrusage``) is its own:
+process of its own on the same file, so that its peak resident memory (``VmHWM``, reset at the
+child's start: Linux carries the parent's peak across exec) is its own:
 
 * ``voro3d``: ``voro3d.reconstruct(cloud)`` with ``grid="auto"``, as a user with a dense oriented scan calls it;
 * ``poisson9``, ``poisson10``: ``TriangleMesh.create_from_point_cloud_poisson(cloud, depth=d)``.
@@ -32,7 +33,10 @@ OUT = ROOT / "benchmarks" / "results"
 MESHES = ("organic_bunny.off", "organic_armadillo.obj", "cad_fandisk.obj", "abc_00000005.stl")
 
 CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
+# The peak resident memory starts as the parent's (Linux keeps it across exec): reset it (Linux >= 4.0).
+with open("/proc/self/clear_refs", "w") as handle:
+    handle.write("5")
 import numpy as np, open3d as o3d
 method, cloud_path, out_path = sys.argv[1:4]
 data = np.load(cloud_path)
@@ -46,8 +50,8 @@ else:
     mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=int(method[len("poisson"):]))
 seconds = time.perf_counter() - start
 o3d.io.write_triangle_mesh(out_path, mesh)
-print(json.dumps(dict(seconds=seconds, peak_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
-                      faces=len(mesh.triangles))))
+peak_kb = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM:"))
+print(json.dumps(dict(seconds=seconds, peak_gb=peak_kb / 2**20, faces=len(mesh.triangles))))
 """
 
 

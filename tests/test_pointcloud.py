@@ -35,7 +35,7 @@ def test_imls_is_the_signed_distance_to_a_plane():
     points = np.c_[rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)]
     normals = np.tile([0.0, 0.0, 1.0], (2000, 1))
     queries = np.c_[rng.uniform(-0.5, 0.5, (50, 2)), rng.uniform(-0.1, 0.1, 50)]
-    value, gradient = imls(points, normals, np.full(2000, 0.05), queries)
+    value, gradient, _ = imls(points, normals, np.full(2000, 0.05), queries)
     assert np.allclose(value, queries[:, 2], atol=1e-9)
     assert np.allclose(gradient, [0.0, 0.0, 1.0])
 
@@ -45,11 +45,11 @@ def test_imls_agreement_is_low_between_the_sides_of_a_thin_wall():
     rng = np.random.default_rng(0)
     flat = np.c_[rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)]
     up = np.tile([0.0, 0.0, 1.0], (2000, 1))
-    _, _, one_side = imls(flat, up, np.full(2000, 0.05), flat, agreement=True)
+    _, _, one_side = imls(flat, up, np.full(2000, 0.05), flat)
     assert np.allclose(one_side, 1.0)
     wall = np.vstack([flat, np.c_[rng.uniform(-1, 1, (2000, 2)), np.full(2000, 0.02)]])
     normals = np.vstack([-up, up])
-    _, _, two_sides = imls(wall, normals, np.full(4000, 0.05), wall, agreement=True)
+    _, _, two_sides = imls(wall, normals, np.full(4000, 0.05), wall)
     assert np.median(two_sides) < 0.5
 
 
@@ -62,7 +62,7 @@ def test_robust_imls_keeps_a_sharp_edge():
     points = np.vstack([top, side])
     normals = np.vstack([np.tile([0, 0, 1.0], (3000, 1)), np.tile([1.0, 0, 0], (3000, 1))])
     corner = np.array([[0.0, 0.0, 0.0]])
-    value, _ = imls(points, normals, np.full(6000, 0.1), corner)
+    value, _, _ = imls(points, normals, np.full(6000, 0.1), corner)
     assert abs(value[0]) < 0.01
 
 
@@ -452,6 +452,6 @@ def test_orientation_weights_in_blocks_give_the_same_normals(sphere_cloud, monke
 def test_imls_does_not_depend_on_its_blocks(sphere_cloud):
     points, normals = sphere_cloud
     queries = np.random.default_rng(10).uniform(-1.2, 1.2, (3000, 3))
-    whole = imls(points, normals, np.full(len(points), 0.05), queries, agreement=True)
-    parts = imls(points, normals, np.full(len(points), 0.05), queries, agreement=True, block=97)
+    whole = imls(points, normals, np.full(len(points), 0.05), queries)
+    parts = imls(points, normals, np.full(len(points), 0.05), queries, block=97)
     assert all(np.array_equal(a, b) for a, b in zip(whole, parts))

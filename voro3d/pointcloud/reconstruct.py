@@ -280,9 +280,9 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     smoothed = (noisy or not (closed or dense)) if denoise is None else bool(denoise)
     given = framed
     if smoothed:
-        value, gradient, agreement = imls(framed, normals, widths, framed, tree=tree, agreement=True)
+        value, gradient, agreement = imls(framed, normals, widths, framed, tree=tree)
         if noisy and np.median(agreement) > MIN_NORMAL_AGREEMENT:
-            value, gradient = imls(framed, gradient, widths, framed, tree=tree)
+            value, gradient, _ = imls(framed, gradient, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
     depth = poisson_depth(grid)

@@ -123,7 +123,7 @@ class TargetSurface(_GridSurface):
             tree = cKDTree(self.points)
             distance, nearest = tree.query(queries[close], workers=-1)
             at = np.flatnonzero(close)[distance <= IMLS_BAND * self.widths[nearest]]
-            value[at], _ = imls(self.points, self.normals, self.widths, queries[at], tree=tree)
+            value[at], _, _ = imls(self.points, self.normals, self.widths, queries[at], tree=tree)
         return value < 0
 
     def project(self, queries: np.ndarray) -> np.ndarray:
@@ -131,7 +131,7 @@ class TargetSurface(_GridSurface):
         field's mean normal, taken only where it moves the point less than a grid step (far from
         the points, over filled holes, the proxy mesh is the surface)."""
         queries = np.array(queries, np.float64)
-        value, gradient = imls(self.points, self.normals, self.widths, queries)
+        value, gradient, _ = imls(self.points, self.normals, self.widths, queries)
         move = -value[:, None] * gradient
         small = np.linalg.norm(move, axis=1) < 2.0 / (self.resolution - 1)
         queries[small] += move[small]
@@ -204,8 +204,7 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     return SheetSurface(supported, vertices, triangles, float(offset))
 
 
-def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536,
-         agreement: bool = False):
+def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536):
     """Robust IMLS signed distance and its direction at ``queries``.
 
     f(x) = sum_i w_i(x) n_i . (x - p_i) / sum_i w_i(x), with w_i = exp(-|x - p_i|^2 / h_i^2)
@@ -221,8 +220,6 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
         Gaussian kernel width per point.
     queries : (q, 3) float64
     tree : scipy.spatial.cKDTree of ``points``, optional
-    agreement : bool
-        Also return how well the neighbours' normals agree.
 
     Returns
     -------
@@ -231,8 +228,9 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
         distance to the nearest tangent plane.
     gradient : (q, 3) float64
     agreement : (q,) float64
-        Only with ``agreement=True``: the length of the weighted mean normal, 1 where the
-        neighbours' normals agree, near 0 where they cancel (the two sides of a thin wall).
+        The length of the weighted mean normal: 1 where the neighbours' normals agree, near 0
+        where they cancel (the two sides of a thin wall). Always returned (it costs nothing),
+        so that the three values unpack the same way on every call.
     """
     from scipy.spatial import cKDTree
 
@@ -264,7 +262,7 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
         norm = np.linalg.norm(mean, axis=1)
         gradient[rows] = mean / np.maximum(norm, 1e-12)[:, None]
         length[rows] = norm / weight.sum(axis=1)
-    return (value, gradient, length) if agreement else (value, gradient)
+    return value, gradient, length
 
 
 def target_surface(points, normals, widths, resolution: int, *, dense: bool = False,
@@ -306,7 +304,7 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     near = np.isfinite(distance)
     near[near] = distance[near] <= IMLS_BAND * widths[nearest[near]]
     field = np.empty(nodes.shape[0])
-    field[near], _ = imls(points, normals, widths, nodes[near], tree=tree)
+    field[near], _, _ = imls(points, normals, widths, nodes[near], tree=tree)
     # Far field: winding number on a grid half as fine, trilinear; scaled like a distance
     # (a winding number moves from 0 to 1 over about one kernel width) so that Marching Cubes
     # places the rare far-field crossings (hole fillings) sensibly.
