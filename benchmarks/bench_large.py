@@ -12,7 +12,12 @@ Each output is scored against the mesh (:func:`voro3d.evaluate`: CD x1e5, F1, NC
 Methods of one mesh run back to back, so they share the machine's load; the load average is
 recorded before each. Writes ``benchmarks/results/large.md`` and ``large.json``.
 
+``--scaling 100000 300000 ...``: instead, ``voro3d`` alone on one mesh at each point count, its
+seconds and peak memory against the count as a table and a log-log plot
+(``benchmarks/results/large_scaling.md``, ``.json``, ``.png``).
+
     python benchmarks/bench_large.py [--meshes organic_bunny.off ...] [--points 1000000]
+    python benchmarks/bench_large.py --scaling 100000 300000 1000000 3000000 [--meshes organic_bunny.off]
 """
 from __future__ import annotations
 
@@ -69,8 +74,12 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--methods", nargs="+", default=["voro3d", "poisson9", "poisson10"])
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--scaling", type=int, nargs="+", help="point counts: voro3d alone on the first mesh")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
+    if args.scaling:
+        _scaling(args)
+        return
     import voro3d
     from voro3d.io import load_mesh
 
@@ -102,6 +111,58 @@ def main() -> None:
         lines.append(f"| {r['mesh']} | {r['method']} | {r['seconds']:.1f} | {r['peak_gb']:.2f} | {r['faces']:,} | "
                      f"{r['cd']:.3f} | {r['f1']:.3f} | {r['nc']:.4f} | {r['load_before']:.1f} |")
     (args.out / "large.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def _scaling(args) -> None:
+    """``voro3d`` alone on the first mesh at each of ``args.scaling`` points: table, JSON and plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    import voro3d
+    from voro3d.io import load_mesh
+
+    name = args.meshes[0]
+    source = load_mesh(DEV / name)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="voro3d-large-") as scratch:
+        for count in args.scaling:
+            points, normals = voro3d.sample_surface(source, count, seed=0)
+            cloud = Path(scratch) / "cloud.npy"
+            np.save(cloud, np.hstack([points, normals]))
+            del points, normals
+            out = Path(scratch) / "voro3d.ply"
+            row = dict(mesh=name, points=count, method="voro3d", **_run("voro3d", cloud, out))
+            scores = voro3d.evaluate(load_mesh(out, weld=False), source)
+            row.update(cd=scores["chamfer_x1e5"], f1=scores["f1"], nc=scores["nc"])
+            rows.append(row)
+            print(row, flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "large_scaling.json").write_text(json.dumps(dict(date=time.strftime("%Y-%m-%d %H:%M"),
+                                                                 cpus=os.cpu_count(), rows=rows), indent=1))
+    counts = np.array([r["points"] for r in rows], float)
+    slope = {key: float(np.polyfit(np.log(counts), np.log([r[key] for r in rows]), 1)[0]) for key in ("seconds", "peak_gb")}
+    lines = [f"# voro3d's time and memory against the point count ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs)",
+             "", f"`reconstruct` (grid auto, true normals) on area-uniform samples of {name}, each count in a process of "
+             "its own (peak = its resident maximum). Log-log slopes over the counts: seconds "
+             f"{slope['seconds']:.2f}, peak memory {slope['peak_gb']:.2f} (1 = linear). "
+             "`python benchmarks/bench_large.py --scaling ...`.", "",
+             "| points | seconds | peak GB | faces | CD | NC | load before |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['points']:,} | {r['seconds']:.1f} | {r['peak_gb']:.2f} | {r['faces']:,} | {r['cd']:.3f} | "
+                     f"{r['nc']:.4f} | {r['load_before']:.1f} |")
+    (args.out / "large_scaling.md").write_text("\n".join(lines) + "\n")
+    figure, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+    for ax, key, label in ((axes[0], "seconds", "seconds"), (axes[1], "peak_gb", "peak resident memory (GB)")):
+        ax.loglog(counts, [r[key] for r in rows], "o-")
+        ax.set_xlabel("points")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+    figure.suptitle(f"voro3d.reconstruct on {name}, 2-core machine")
+    figure.tight_layout()
+    figure.savefig(args.out / "large_scaling.png", dpi=100)
     print("\n".join(lines))
 
 
