@@ -9,8 +9,8 @@ Threads, determinism, the reference
 The extension ``voro3d._fitkernel`` (``src/voro3d_fitkernel.cpp``) computes each step's loss and
 gradient in one pass over the candidates and runs the kNN searches (an exact grid search), on
 ``fit(threads=)`` threads, by default ``torch.get_num_threads()`` when torch is loaded, else
-``OMP_NUM_THREADS``, else every CPU the process may use (:func:`cpu_threads`). Its gradient is summed in fixed point, so a seed gives the same output on any
-thread count. The torch loop is the reference (the tests check the kernel's loss and gradient against
+``OMP_NUM_THREADS``, else every CPU the process may use (:func:`cpu_threads`). Its gradient is
+summed in fixed point, so a seed gives the same output on any thread count. The torch loop is the reference (the tests check the kernel's loss and gradient against
 it in float64, and a fit through each) and the ``device="cuda"`` path, which is still untested on a
 GPU. Speed: ``benchmarks/README.md`` (``fit_speed``, ``profile_fit_kernel``).
 """

@@ -132,6 +132,12 @@ def grid_option(grid, *, allow_auto: bool = True):
     return positive_int(grid, "grid", minimum=MIN_GRID)
 
 
+def mesh_grid(grid) -> int:
+    """A mesh's grid: :func:`grid_option`, with ``"auto"`` as ``MESH_AUTO_GRID`` (a mesh has no point spacing)."""
+    grid = grid_option(grid)
+    return MESH_AUTO_GRID if grid == "auto" else grid
+
+
 def method_options(method: str, owner: str, **options) -> dict:
     """The ``options`` given (not None), refused unless ``method`` is ``owner``, the method that uses them.
 

@@ -114,12 +114,12 @@ def output_path(*suffixes: str):
 
 def grid_argument(text: str):
     """``--grid``: ``auto`` or an integer >= 4, the rule of every subcommand (``_validate.grid_option``)."""
-    from ._validate import grid_option
+    from ._validate import MIN_GRID, grid_option
 
     try:
         return grid_option(text if text == "auto" else int(text))
     except ValueError as error:
-        raise argparse.ArgumentTypeError(f"must be 'auto' or an integer >= 4, got {text!r}") from error
+        raise argparse.ArgumentTypeError(f"must be 'auto' or an integer >= {MIN_GRID}, got {text!r}") from error
 
 
 def positive_argument(text: str) -> int:

@@ -28,7 +28,7 @@ import numpy as np
 
 from ._cpufit import KernelLoop, cpu_threads
 from ._extras import require
-from ._validate import MESH_AUTO_GRID, as_points, grid_option, positive_int, trusted
+from ._validate import as_points, grid_option, mesh_grid, positive_int, trusted
 from .delaunay import triangulate
 from .fitloop import Adam, FitLoop, spatial_order
 from .frames import fit_frame
@@ -188,8 +188,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     loop runs in torch, the reference the kernel is tested against.
     """
     start = time.perf_counter()
-    grid = grid_option(grid)
-    grid = MESH_AUTO_GRID if grid == "auto" else grid
+    grid = mesh_grid(grid)
     n_samples = SAMPLES_PER_FACE * grid**2 if n_samples is None else positive_int(n_samples, "n_samples")
     _device(device)  # fail before the sampling, not after
 

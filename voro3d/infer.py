@@ -340,13 +340,12 @@ class Predictor:
         VoroMesh
             Generators in the units of ``mesh``.
         """
-        from ._validate import MESH_AUTO_GRID, grid_option
+        from ._validate import mesh_grid
         from .frames import fit_frame
         from .io import mesh_arrays
         from .queries import sdf_grid
 
-        grid = grid_option(grid)
-        grid = MESH_AUTO_GRID if grid == "auto" else grid
+        grid = mesh_grid(grid)
         vertices, triangles = mesh_arrays(mesh)
         frame = fit_frame((vertices, triangles))
         voro = self.predict(sdf_grid((frame.apply(vertices), triangles), grid, allow_open=allow_open), fallback=fallback)

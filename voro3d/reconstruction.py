@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import MESH_AUTO_GRID, as_points, grid_option, method_options, positive_int, trusted
+from ._validate import MESH_AUTO_GRID, as_points, grid_option, mesh_grid, method_options, positive_int, trusted
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
 from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 
@@ -112,7 +112,7 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     # The input was checked by _read: the stages below trust it.
     with trusted():
         if kind == "mesh":
-            return _mesh_to_mesh(data, MESH_AUTO_GRID if grid == "auto" else grid, method, options,
+            return _mesh_to_mesh(data, mesh_grid(grid), method, options,
                                  allow_open=allow_open, clean=clean, progress=progress)
         return _cloud_to_mesh(*data, grid, method, options, denoise=denoise, clean=clean, progress=progress)
 

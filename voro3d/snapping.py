@@ -62,7 +62,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .geometry import face_area_vectors as _normals, raycasting_scene, smallest_angles, vertex_normals
+from .geometry import face_area_vectors as _normals, face_normals, raycasting_scene, smallest_angles, vertex_normals
 from .io import mesh_arrays
 from .watertight import self_intersections, signed_volume
 
@@ -155,8 +155,7 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float):
     from scipy.sparse import coo_matrix
 
     scene = raycasting_scene(*surface)
-    planes = _normals(*surface)
-    planes /= np.maximum(np.linalg.norm(planes, axis=1), 1e-300)[:, None]
+    planes = face_normals(*surface)
     n = len(vertices)
     # A vertex's weight in each face point is its barycentric coordinate there: its normal
     # equations sum the residuals times those, over the sum of their squares.

@@ -10,7 +10,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from .._system import available_cpus
-from .._validate import MESH_AUTO_GRID, grid_option, method_options, positive_int
+from .._validate import mesh_grid, method_options, positive_int
 from ..io import MESH_SUFFIXES
 from .local import run_local
 from .plan import (ENGINES, EXIT_INTERRUPTED, METHODS, RESULTS_NAME, BatchSummary, ShapeTask, _complete, _fsync,
@@ -114,8 +114,7 @@ def run_batch(input_dir, output_dir, *, method: str = "fit", grid: int = 32, ste
         raise ValueError(f"ray_address is only used with engine='ray', got engine={engine!r}")
     method_options(method, "fit", steps=steps)
     method_options(method, "learned", model=model)
-    grid = grid_option(grid)
-    grid = MESH_AUTO_GRID if grid == "auto" else grid
+    grid = mesh_grid(grid)
     steps = positive_int(FIT_STEPS if steps is None else steps, "steps") if method == "fit" else None
     seed = positive_int(seed, "seed", minimum=0)
     threads = positive_int(threads, "threads")

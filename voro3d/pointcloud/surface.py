@@ -188,9 +188,10 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     from scipy import ndimage
     from scipy.spatial import cKDTree
 
+    from ..geometry import grid_voxel
     from ..sampling import grid_nodes
 
-    step = 2.0 / (resolution - 1)
+    step = grid_voxel(resolution)
     # Beyond a few steps past the offset only the side matters: clamp there (the blur's reach).
     far = offset + 4.0 * step
     distance, _ = cKDTree(points).query(grid_nodes(resolution), distance_upper_bound=far, workers=-1)
@@ -292,10 +293,11 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     from scipy import ndimage
     from scipy.spatial import cKDTree
 
+    from ..geometry import grid_voxel
     from ..queries import point_areas, point_winding_number
     from ..sampling import grid_nodes
 
-    step = 2.0 / (resolution - 1)
+    step = grid_voxel(resolution)
     nodes = grid_nodes(resolution)
     tree = cKDTree(points)
     # The band: nodes within IMLS_BAND kernel widths of their nearest point.
