@@ -6,14 +6,16 @@ VENV := .venv
 PY := $(VENV)/bin/python
 DEMO_STAMP := $(VENV)/.installed-demo
 TEST_STAMP := $(VENV)/.installed-test
+# The compiled extensions' sources: an editable install builds them once, so a change to them reinstalls.
+EXTENSION_SOURCES := $(wildcard src/*.cpp src/*.h src/clean/*.h)
 
 .PHONY: demo test test-slow docs wheels clean
 
-$(DEMO_STAMP): pyproject.toml setup.py
+$(DEMO_STAMP): pyproject.toml setup.py $(EXTENSION_SOURCES)
 	bash scripts/install.sh demo
 	touch $(DEMO_STAMP)
 
-$(TEST_STAMP): pyproject.toml setup.py
+$(TEST_STAMP): pyproject.toml setup.py $(EXTENSION_SOURCES)
 	bash scripts/install.sh test
 	touch $(TEST_STAMP) $(DEMO_STAMP)
 
