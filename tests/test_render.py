@@ -119,6 +119,10 @@ def test_a_mesh_with_vertex_colours_is_drawn_in_them(tmp_path, backend):
                                          backend=backend))
     plain = plain[plain.mean(axis=2) < 250]
     assert (plain[:, 2] > plain[:, 0]).mean() > 0.9  # colors= still overrides them
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.zeros((len(mesh.vertices), 3)))  # Open3D's "no colours"
+    blank = _pixels(render.render_meshes([mesh], tmp_path / "b.png", size=SMALL, view="front", backend=backend))
+    blank = blank[blank.mean(axis=2) < 250]
+    assert (blank[:, 2] > blank[:, 0]).mean() > 0.9 and blank.mean() > 60  # the default colour, shaded, not black
 
 
 def test_accepts_tensor_meshes_and_array_pairs(tmp_path, sphere):

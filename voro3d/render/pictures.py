@@ -89,7 +89,11 @@ def render_meshes(meshes, path, *, titles=None, colors=None, size=(640, 480), vi
 
 
 def _vertex_colors(meshes, arrays) -> list:
-    """Each mesh's own vertex colours, ``(v, 3)`` in [0, 1], where it has them; else None."""
+    """Each mesh's own vertex colours, ``(v, 3)`` in [0, 1], where it has them; else None.
+
+    All-black colours are none: Open3D fills them so where its input had no colours (Poisson's mesh of an
+    uncoloured cloud), and drawn they would hide the shape in a black silhouette.
+    """
     if hasattr(meshes, "triangles") or hasattr(meshes, "triangle"):  # one mesh, as _meshes_arg reads it
         meshes = [meshes]
     found = []
@@ -99,7 +103,10 @@ def _vertex_colors(meshes, arrays) -> list:
             rgb = np.asarray(mesh.vertex_colors, np.float64)
         elif hasattr(mesh, "vertex") and "colors" in mesh.vertex:
             rgb = mesh.vertex.colors.numpy().astype(np.float64)
-        found.append(np.clip(rgb, 0.0, 1.0) if rgb is not None and rgb.shape == vertices.shape else None)
+        if rgb is None or rgb.shape != vertices.shape or not rgb.any():
+            found.append(None)
+        else:
+            found.append(np.clip(rgb, 0.0, 1.0))
     return found
 
 
