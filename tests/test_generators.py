@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from voro3d import sampling
-from voro3d.generators import grid_nodes, initial_generators
+from voro3d.generators import AdaptiveBand, grid_nodes, initial_generators
 
 
 def _reference(samples, grid):
@@ -109,3 +109,58 @@ def test_matches_loop_reference(samples, grid):
 def test_bad_input(samples, grid, error, match):
     with pytest.raises(error, match=match):
         initial_generators(samples, grid)
+
+
+def _sphere(n=20_000, radius=0.8, seed=0):
+    points = np.random.default_rng(seed).normal(size=(n, 3))
+    return radius * points / np.linalg.norm(points, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("grid", [17, 33, 64])
+def test_band_without_levels_is_the_uniform_band(grid):
+    points = _sphere()
+    band = AdaptiveBand(points, grid, levels=0, tolerance=0.1)
+    np.testing.assert_array_equal(band.generators(), initial_generators(points, grid))
+    np.testing.assert_array_equal(band.level_of(points), 0)
+
+
+def test_flat_surface_stays_coarse_and_curved_one_is_refined():
+    rng = np.random.default_rng(1)
+    plane = np.c_[rng.uniform(-0.9, 0.9, (200_000, 2)), np.full(200_000, 0.013)]
+    flat = AdaptiveBand(plane, 129, levels=2, tolerance=0.1)
+    assert [leaves.size for leaves in flat.leaves[:2]] == [0, 0]  # all coarsest
+    np.testing.assert_array_equal(flat.level_of(plane), 2)
+    assert flat.generators().shape[0] < initial_generators(plane, 129).shape[0] / 10
+    # A small sphere (radius 4 fine voxels) bends within every coarse voxel: none is left coarse.
+    ball = AdaptiveBand(_sphere(radius=0.0625), 129, levels=2, tolerance=0.1)
+    assert ball.leaves[2].size == 0 and ball.leaves[1].size > 0
+    # The tolerance trades generators for detail, monotonically.
+    sphere = _sphere()
+    counts = [AdaptiveBand(sphere, 129, levels=2, tolerance=t).generators().shape[0] for t in (0.0, 0.01, 0.1)]
+    assert counts[0] == initial_generators(sphere, 129).shape[0] and counts[0] > counts[1] > counts[2]
+
+
+def test_band_generators_lie_on_the_fine_lattice_and_cover_every_leaf():
+    sphere = _sphere()
+    band = AdaptiveBand(sphere, 65, levels=2, tolerance=0.01)
+    generators = band.generators()
+    nodes = np.round((generators + 1.0) / 2.0 * 64)
+    np.testing.assert_allclose(np.linspace(-1, 1, 65)[nodes.astype(int)], generators)
+    assert np.unique(nodes, axis=0).shape[0] == generators.shape[0]
+    # Every point's leaf has its 8 corners among the generators.
+    level = band.level_of(sphere)
+    size = 2.0 ** level * (2.0 / 64)
+    lowest = np.floor((sphere + 1.0) / size[:, None]) * size[:, None] - 1.0
+    corners = lowest[:, None, :] + np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) * size[:, None, None]
+    corners = np.minimum(corners, 1.0)
+    keys = {tuple(row) for row in np.round((generators + 1.0) * 32).astype(int)}
+    assert all(tuple(row) in keys for row in np.round((corners.reshape(-1, 3) + 1.0) * 32).astype(int))
+    np.testing.assert_allclose(band.density(sphere), 0.25 ** level)
+
+
+@pytest.mark.parametrize("kwargs, match", [(dict(levels=-1, tolerance=0.1), "levels"),
+                                           (dict(levels=1, tolerance=-0.1), "tolerance"),
+                                           (dict(levels=1, tolerance=float("nan")), "tolerance")])
+def test_band_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        AdaptiveBand(_sphere(100), 33, **kwargs)

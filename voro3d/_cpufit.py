@@ -45,7 +45,7 @@ class KernelLoop(FitLoop):
     batches as in :mod:`voro3d.fitloop`."""
 
     def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int, batch_fraction: float,
-                 threads: int):
+                 threads: int, reach: np.ndarray | None = None):
         self.n_samples = samples.shape[0]
         self.batch = max(1, int(round(batch_fraction * self.n_samples)))
         self.samples = np.concatenate([samples, samples[: self.batch]]).astype(np.float32)
@@ -53,7 +53,9 @@ class KernelLoop(FitLoop):
         self.grad = np.zeros_like(self.positions)
         self.k = min(k, generators.shape[0])
         self.threads = threads
-        self.voxel = grid_voxel(grid)
+        # Bucket cells about one generator wide (the search's speed depends on it, not its answers).
+        self.cell = grid_voxel(grid) * (1.0 if reach is None else float(np.median(reach)))
+        self.reach_squared = None if reach is None else np.square(reach)
         # The search runs in spatial order and writes each answer to its sample's row.
         self.search_rows = spatial_order(samples, grid)
         self.search_samples = np.ascontiguousarray(samples[self.search_rows], dtype=np.float32)
@@ -62,7 +64,7 @@ class KernelLoop(FitLoop):
         self._search()
 
     def _search(self):
-        _fitkernel.nearest_generators(self.search_samples, self.positions, self.k, cell=self.voxel,
+        _fitkernel.nearest_generators(self.search_samples, self.positions, self.k, cell=self.cell,
                                       threads=self.threads, out=self.candidates, rows=self.search_rows)
         self.candidates[self.n_samples:] = self.candidates[: self.batch]  # the first window, repeated
         self.searched_at = self.positions.copy()
@@ -81,7 +83,8 @@ class KernelLoop(FitLoop):
         np.clip(self.positions, -1.0, 1.0, out=self.positions)
 
     def _moved(self):
-        return np.square(self.positions - self.searched_at).sum(axis=1).max()
+        moved = np.square(self.positions - self.searched_at).sum(axis=1)
+        return (moved if self.reach_squared is None else moved / self.reach_squared).max()
 
     def loss(self) -> float:
         """VoroLoss over all samples with the current candidates."""
@@ -90,3 +93,4 @@ class KernelLoop(FitLoop):
 
     def generators(self) -> np.ndarray:
         return self.positions.astype(np.float64)
+

@@ -208,7 +208,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
 def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr: float = 0.005,
                 milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
                 k: int = FIT_K, seed: int = 0, device: str = "cpu", threads: int | None = None,
-                progress: bool = False) -> tuple[VoroMesh, FitInfo]:
+                generators=None, progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit`.
 
     Parameters
@@ -222,6 +222,12 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         As in :func:`fit`.
     frame : voro3d.frames.NormalizationFrame, optional
         The generators are mapped back through ``frame.invert``; None keeps the fit frame.
+    generators : (n, 3) float, optional
+        Initial generators in the fit frame, e.g. an adaptive band's
+        (:meth:`voro3d.generators.AdaptiveBand.generators`, whose level 0 is ``grid``); default
+        :func:`~voro3d.generators.initial_generators` of ``grid``. ``grid`` is then their finest
+        spacing: the result's voxel; the kNN refresh distance of each generator is scaled by its
+        nearest-neighbour distance in those voxels.
 
     Returns
     -------
@@ -245,13 +251,18 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     device = _device(device)
     threads = cpu_threads() if threads is None else positive_int(threads, "threads")
 
+    reach = None
+    if generators is not None:
+        generators = as_points(generators, "generators", min_count=k)
+        reach = _refresh_reach(generators, grid)
     with trusted():
-        generators = initial_generators(samples, grid)
+        generators = initial_generators(samples, grid) if generators is None else generators
         schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
                         refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE),
                         progress=progress)
         if device == "cpu" and _CPU_KERNEL:
-            loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads)
+            loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads,
+                              reach=reach)
             initialised = time.perf_counter()
             losses = loop.run(steps, **schedule)
             final_loss = loop.loss()
@@ -259,7 +270,7 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
             import torch
 
             loop = _TorchLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
-                              device=torch.device(device))
+                              device=torch.device(device), reach=reach)
             initialised = time.perf_counter()
             previous = torch.get_num_threads()
             if device == "cpu":
@@ -289,6 +300,20 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         return result, info
 
 
+def _refresh_reach(generators: np.ndarray, grid: int) -> np.ndarray:
+    """(n,) float32, ``>= 1``: each generator's nearest-neighbour distance in ``grid`` voxels.
+
+    Given generators (an adaptive band's) are spaced by their own leaves' voxels: one moves as far
+    before its candidates go stale, and the candidate search's cells follow their median. Against
+    the finest voxel for all, a 1M-point fandisk over 3 levels (128^3 to 32^3) searched 12 times
+    where the uniform 64^3 band searched 3, and the fit took 1.7x as long per sample.
+    """
+    from scipy.spatial import cKDTree
+
+    distance, _ = cKDTree(generators).query(generators, k=2)
+    return np.maximum(distance[:, 1] / grid_voxel(grid), 1.0).astype(np.float32)
+
+
 def _in_frame(inside, frame):
     """``inside`` (a fit-frame test) for points in the frame's original units."""
     return lambda points: inside(frame.apply(points))
@@ -315,7 +340,7 @@ class _TorchLoop(FitLoop):
     generators and their kNN candidates, coordinate-major."""
 
     def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int,
-                 batch_fraction: float, device: torch.device):
+                 batch_fraction: float, device: torch.device, reach: np.ndarray | None = None):
         import torch
 
         self.n_samples = samples.shape[0]
@@ -325,6 +350,7 @@ class _TorchLoop(FitLoop):
         self.generators_t = torch.nn.Parameter(
             torch.tensor(generators.T, dtype=torch.float32, device=device).contiguous())
         self.k = min(k, generators.shape[0])
+        self.reach = None if reach is None else torch.tensor(reach, device=device)
         # The samples never move, so they are sorted for the KD-tree once.
         order = spatial_order(samples, grid)
         self.search_samples = np.ascontiguousarray(samples[order], dtype=np.float32)
@@ -383,7 +409,8 @@ class _TorchLoop(FitLoop):
         import torch
 
         with torch.no_grad():
-            return (self.generators_t - self.searched_at).square_().sum(0).amax()
+            moved = (self.generators_t - self.searched_at).square_().sum(0)
+            return (moved if self.reach is None else moved / self.reach.square()).amax()
 
     def loss(self) -> float:
         """VoroLoss over all samples with the current candidates."""

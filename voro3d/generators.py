@@ -7,8 +7,10 @@ from ._validate import as_points, positive_int
 from .geometry import grid_voxel
 from .sampling import grid_nodes
 
-__all__ = ["grid_nodes", "initial_generators"]
+__all__ = ["AdaptiveBand", "grid_nodes", "initial_generators"]
 
+# Fewest points in a voxel whose plane fit decides it is flat.
+_MIN_PLANE_POINTS = 8
 # Offsets of a voxel's 8 corners from its lowest corner, in node steps.
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.int64)
 
@@ -50,3 +52,120 @@ def initial_generators(samples, grid: int) -> np.ndarray:
     ijk = np.stack([nodes // (grid * grid), (nodes // grid) % grid, nodes % grid], axis=1)
     # The coordinates of grid_nodes, bit for bit, so rows equal ``grid_nodes(grid)[nodes]``.
     return np.linspace(-1.0, 1.0, grid)[ijk]
+
+
+class AdaptiveBand:
+    """An octree band of voxels around a surface: coarse where the surface is flat, fine where not.
+
+    Level 0 is the uniform grid of ``grid`` nodes per axis (voxel ``h = 2 / (grid - 1)``); a
+    level-``l`` voxel is a block of ``2^l`` level-0 voxels per axis, its corners level-0 nodes, so
+    voxels of all levels share one node lattice. Built top-down from surface points: a voxel of
+    level ``l >= 1`` holding points is split into its 8 children while its points lie further than
+    ``tolerance * h`` (root mean square) from their least-squares plane, or holds too few to
+    tell (under 8); otherwise it is a leaf.
+    A flat patch is as exact in one coarse Voronoi face as in many fine ones, and a curved or
+    sharp patch gets the finest voxels, so the generators (the leaves' corners) and the fit's
+    samples go where the surface has detail. With ``levels=0`` it is the uniform band of
+    :func:`initial_generators`.
+
+    Parameters
+    ----------
+    points : (m, 3) float
+        Surface points in the fit frame (``[-1, 1]^3``), dense enough that every voxel of level 1
+        crossed by the surface holds a few (a target mesh's vertices at its resolution).
+    grid : int
+        Level-0 nodes per axis, ``>= 2``.
+    levels : int
+        Levels above level 0, ``>= 0``; the coarsest voxels are ``2^levels`` fine voxels wide.
+    tolerance : float
+        Plane-fit residual, in level-0 voxels, above which a voxel is split.
+
+    Attributes
+    ----------
+    grid, levels, tolerance
+        As given.
+    leaves : list of (n_l,) int64
+        Sorted keys (C-order index in the level's own voxel grid) of each level's leaves.
+    """
+
+    def __init__(self, points, grid: int, *, levels: int, tolerance: float):
+        points = as_points(points, "points")
+        self.grid = positive_int(grid, "grid", minimum=2)
+        self.levels = positive_int(levels, "levels", minimum=0)
+        if not (np.isfinite(tolerance) and tolerance >= 0):
+            raise ValueError(f"tolerance must be a finite number >= 0, got {tolerance}")
+        self.tolerance = float(tolerance)
+        ijk = self._voxels(points)
+        limit = (self.tolerance * grid_voxel(self.grid)) ** 2
+        self.leaves = [np.empty(0, np.int64)] * (self.levels + 1)
+        active = np.ones(points.shape[0], bool)
+        for level in range(self.levels, -1, -1):
+            keys = self._keys(ijk[active] >> level, level)
+            unique, group = np.unique(keys, return_inverse=True)
+            if level == 0:
+                self.leaves[0] = unique
+                break
+            residual, count = _plane_residual(points[active], group, unique.shape[0])
+            # A few points say nothing of the surface's shape (3 always lie on a plane): split.
+            flat = (residual <= limit) & (count >= _MIN_PLANE_POINTS)
+            self.leaves[level] = unique[flat]
+            # Points of split voxels go on to the next level down.
+            active[np.flatnonzero(active)[flat[group]]] = False
+
+    def _voxels(self, points: np.ndarray) -> np.ndarray:
+        """Level-0 voxel (i, j, k) of each point, points outside clipped into the boundary voxels."""
+        return np.clip(np.floor((points + 1.0) / grid_voxel(self.grid)).astype(np.int64), 0, self.grid - 2)
+
+    def _size(self, level: int) -> int:
+        """Voxels per axis at ``level`` (the last one cut off by the box)."""
+        return ((self.grid - 2) >> level) + 1
+
+    def _keys(self, ijk: np.ndarray, level: int) -> np.ndarray:
+        size = self._size(level)
+        return (ijk[:, 0] * size + ijk[:, 1]) * size + ijk[:, 2]
+
+    def level_of(self, points) -> np.ndarray:
+        """(m,) int64: the level of the leaf holding each point; 0 where none does (off the band)."""
+        ijk = self._voxels(np.asarray(points, dtype=np.float64))
+        level = np.zeros(ijk.shape[0], np.int64)
+        found = np.zeros(ijk.shape[0], bool)
+        for current in range(self.levels, 0, -1):
+            leaves = self.leaves[current]
+            if leaves.size == 0:
+                continue
+            keys = self._keys(ijk >> current, current)
+            at = np.minimum(np.searchsorted(leaves, keys), leaves.size - 1)
+            hit = ~found & (leaves[at] == keys)
+            level[hit], found = current, found | hit
+        return level
+
+    def generators(self) -> np.ndarray:
+        """(n, 3) float64: the distinct corners of all leaves, in increasing C-order level-0 node index."""
+        strides = np.array([self.grid * self.grid, self.grid, 1], dtype=np.int64)
+        nodes = []
+        for level, leaves in enumerate(self.leaves):
+            size = self._size(level)
+            ijk = np.stack([leaves // (size * size), (leaves // size) % size, leaves % size], axis=1)
+            corners = np.minimum((ijk[:, None, :] + _CORNERS) << level, self.grid - 1)
+            nodes.append((corners @ strides).reshape(-1))
+        nodes = np.unique(np.concatenate(nodes))
+        ijk = np.stack([nodes // (self.grid * self.grid), (nodes // self.grid) % self.grid, nodes % self.grid], axis=1)
+        return np.linspace(-1.0, 1.0, self.grid)[ijk]
+
+    def density(self, points) -> np.ndarray:
+        """(m,) float64: samples per area at each point as a share of level 0's, ``4^-level``: the
+        uniform fit of a leaf's own grid gives each voxel face the same number of samples."""
+        return 0.25 ** self.level_of(points)
+
+
+def _plane_residual(points: np.ndarray, group: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n_groups,) float64 each: mean squared distance of each group's points to their least-squares
+    plane (the smallest eigenvalue of the group's covariance), and the group's point count."""
+    count = np.bincount(group, minlength=n_groups).astype(np.float64)
+    mean = np.stack([np.bincount(group, points[:, a], n_groups) for a in range(3)], axis=1) / count[:, None]
+    centred = points - mean[group]
+    cov = np.empty((n_groups, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            cov[:, a, b] = cov[:, b, a] = np.bincount(group, centred[:, a] * centred[:, b], n_groups) / count
+    return np.linalg.eigvalsh(cov)[:, 0], count

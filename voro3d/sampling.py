@@ -10,11 +10,12 @@ from .io import mesh_arrays
 __all__ = ["sample_surface", "grid_nodes"]
 
 
-def sample_surface(mesh, n_samples: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def sample_surface(mesh, n_samples: int, *, seed: int = 0, density=None) -> tuple[np.ndarray, np.ndarray]:
     """Uniform area-weighted samples on a triangle mesh, with the normals of their faces.
 
-    Faces are drawn with probability proportional to their area, then a point uniformly inside the
-    face (square-root barycentric map). Unlike Open3D's sampler this is reproducible with ``seed``.
+    Faces are drawn with probability proportional to their area (times ``density``), then a point
+    uniformly inside the face (square-root barycentric map). Unlike Open3D's sampler this is
+    reproducible with ``seed``.
 
     Parameters
     ----------
@@ -23,6 +24,9 @@ def sample_surface(mesh, n_samples: int, *, seed: int = 0) -> tuple[np.ndarray, 
         Number of samples, ``>= 1``.
     seed : int
         Seed of ``numpy.random.default_rng``; the same seed and mesh give the same samples.
+    density : (t,) float, optional
+        Relative samples per area of each face, ``>= 0`` (an adaptive fit's finer and coarser
+        parts); default uniform.
 
     Returns
     -------
@@ -34,14 +38,19 @@ def sample_surface(mesh, n_samples: int, *, seed: int = 0) -> tuple[np.ndarray, 
     Raises
     ------
     ValueError
-        ``mesh`` has no triangles or zero total area; ``n_samples < 1``.
+        ``mesh`` has no triangles or zero total area (weighted by ``density``); ``n_samples < 1``;
+        ``density`` is not one finite number ``>= 0`` per face.
     """
     vertices, triangles = mesh_arrays(mesh)
     n = positive_int(n_samples, "n_samples")
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
     cross = face_area_vectors(vertices, triangles)
     double_area = np.linalg.norm(cross, axis=1)
-    cdf = np.cumsum(double_area)
+    if density is not None:
+        density = np.asarray(density, dtype=np.float64)
+        if density.shape != double_area.shape or not (np.isfinite(density).all() and (density >= 0).all()):
+            raise ValueError(f"density must be {double_area.shape[0]} finite numbers >= 0, one per face")
+    cdf = np.cumsum(double_area if density is None else double_area * density)
     if not cdf[-1] > 0:
         raise ValueError("mesh has zero surface area; nothing to sample")
     rng = np.random.default_rng(seed)

@@ -27,11 +27,11 @@ from .normals import estimate_normals, orient_normals, sign_disagreement
 from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
                          outlier_mask)
 from .poisson import poisson_depth, poisson_surface
+from .resolution import auto_grid, choose_grid, fit_band, max_supported_grid, target_samples
 from .surface import imls, sheet_surface, target_surface, winding_level
 from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, HEAVY_NOISE, FILTER_WIDTH_PER_NOISE,
-                     AUTO_SPACINGS_PER_VOXEL, AUTO_GRID_RANGE, MIN_SPACINGS_PER_VOXEL, DENSE_SPACINGS,
-                     HOLE_VOXELS, STRAY_CELL_SHARE, CLOSED_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE,
+                     DENSE_SPACINGS, MAX_TARGET_GRID, STRAY_CELL_SHARE, CLOSED_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE,
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN,
                      SHEET_OFFSET)
 
@@ -115,18 +115,6 @@ def report_phase(progress: bool, phase: str, text: str, seconds: float | None = 
         from tqdm import tqdm
 
         tqdm.write(f"voro3d {phase:<8} {text}" + ("" if seconds is None else f" ({seconds:.1f} s)"), file=sys.stderr)
-
-
-def max_supported_grid(spacing: float) -> int:
-    """Finest grid whose voxels (fit frame, diagonal 2) are still ``MIN_SPACINGS_PER_VOXEL``
-    median spacings wide; ``spacing`` in fit-frame units."""
-    return int(2.0 / (MIN_SPACINGS_PER_VOXEL * spacing)) + 1
-
-
-def auto_grid(spacing: float) -> int:
-    """Grid for a cloud of median spacing ``spacing`` (fit frame): voxels about
-    ``AUTO_SPACINGS_PER_VOXEL`` spacings wide, clipped to ``AUTO_GRID_RANGE``."""
-    return int(np.clip(round(2.0 / (AUTO_SPACINGS_PER_VOXEL * spacing)) + 1, *AUTO_GRID_RANGE))
 
 
 def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit", steps: int | None = None,
@@ -238,10 +226,11 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     if not stats.median_spacing > 1e-9:
         raise ValueError("most points are duplicated (their neighbours sit at the same position): no surface can be "
                          "fitted to them")
-    grid = _choose_grid(grid, stats.median_spacing)
+    grid, levels = choose_grid(grid, stats.median_spacing, adaptive=method == "fit")
     seconds["clean"] = time.perf_counter() - start
     report_phase(progress, "clean", f"{len(points):,} points kept of {n_points:,} ({int(outliers.sum()):,} outliers), "
-                 f"spacing {stats.median_spacing / frame.scale:.3g}, noise {stats.noise / frame.scale:.3g}, grid {grid}",
+                 f"spacing {stats.median_spacing / frame.scale:.3g}, noise {stats.noise / frame.scale:.3g}, grid {grid}"
+                 f"{f' adaptive over {levels + 1} levels' if levels else ''}",
                  seconds["clean"])
 
     start = time.perf_counter()
@@ -260,7 +249,10 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     noisy = stats.fine_noise > NOISY * stats.median_spacing
     # Clean points are followed closely; noisy ones, or a cloud that held strays, are averaged.
     trusted = not noisy and outliers.mean() < MAX_TRUSTED_OUTLIERS
-    dense = trusted and stats.median_spacing < DENSE_SPACINGS * grid_voxel(grid)
+    # The target's resolution follows the grid only up to MAX_TARGET_GRID; an adaptive band's finer
+    # levels take their detail from the samples (dense points, or the target's own finer mesh).
+    target_grid = min(grid, MAX_TARGET_GRID)
+    dense = trusted and stats.median_spacing < DENSE_SPACINGS * grid_voxel(target_grid)
     # Dense clouds are fitted on their own points; their field only fills holes and must not
     # reach past its band with the planes of single points, so they keep the wider kernel.
     per_spacing = TRUSTED_WIDTH_PER_SPACING if trusted and not dense else WIDTH_PER_SPACING
@@ -285,7 +277,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
             value, gradient, _ = imls(framed, gradient, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
-    depth = poisson_depth(grid)
+    depth = poisson_depth(target_grid)
     filtered = smoothed and noisy and stats.noise > HEAVY_NOISE * 2.0 / 2**depth  # denoise=False: neither
     target = poisson_surface(framed, normals, depth,
                              filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None) if closed else None
@@ -293,7 +285,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
         # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
         target = None
     kind = "poisson" if target is not None else "imls"
-    resolution = min(FIELD_REFINEMENT * grid, MAX_FIELD_RESOLUTION)
+    resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
     if target is None:
         target = target_surface(framed, normals, widths, resolution, dense=dense and not smoothed, level=level)
     if not target.dense:
@@ -314,14 +306,15 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     else:
         from ..fitting import fit_samples
 
-        samples = _fit_samples(target, surface_vertices, framed, grid, seed=fit_options.get("seed", 0))
+        band = fit_band(surface_vertices, grid, levels)
+        samples = target_samples(target, surface_vertices, framed, grid, band=band, seed=fit_options.get("seed", 0))
         seconds["samples"] = time.perf_counter() - start
         start = time.perf_counter()
         shape, _ = fit_samples(samples, target.inside, grid, frame=frame, threads=threads, progress=progress,
-                               **fit_options)
+                               generators=None if band is None else band.generators(), **fit_options)
         shape = _drop_stray_cells(shape)
         seconds["fit"] = time.perf_counter() - start
-    report_phase(progress, "fit", f"{method}, {len(shape.generators):,} generators", seconds["fit"])
+    report_phase(progress, "fit", f"{method}, {len(shape.generators):,} generators, {len(samples) if method == 'fit' else 0:,} samples", seconds["fit"])
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
                           noisy=bool(noisy), normals=normal_source, smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
@@ -359,36 +352,6 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
                  f"{'' if not clean else ', cleaned and fitted to the target' if snap else ', cleaned'}",
                  time.perf_counter() - start)
     return mesh
-
-
-def _fit_samples(target, surface_vertices, points, grid: int, *, seed: int) -> np.ndarray:
-    """The VoroLoss samples: ``150 grid^2`` of them, as a mesh fit gets.
-
-    Dense clean points (``target.dense``: spacing under a third of a voxel) are exact samples
-    already, and the proxy mesh is only as good as its grid (a wall thinner than a grid step is
-    lost there): they are used, and proxy samples only fill the holes, where no point is within
-    ``HOLE_VOXELS`` voxels. Otherwise the samples all come from the target mesh: a Poisson
-    mesh as it is (four times finer than the grid), or the IMLS proxy with its vertices moved
-    onto the IMLS surface (its samples then lie within the chord error of a mesh twice finer
-    than the grid). On closed clouds, dense ones too, Poisson's samples beat the points:
-    bunny and armadillo at 100k points, CD 0.607 / 0.511 from the points, 0.597 / 0.478.
-    """
-    from scipy.spatial import cKDTree
-
-    from ..fitting import SAMPLES_PER_FACE
-    from ..sampling import sample_surface
-
-    budget = SAMPLES_PER_FACE * grid**2
-    proxy, _ = sample_surface((surface_vertices, target.triangles), budget, seed=seed)
-    if not target.dense:
-        return proxy
-    if points.shape[0] > budget:
-        points = points[np.random.default_rng(seed).choice(points.shape[0], budget, replace=False)]
-    hole = HOLE_VOXELS * grid_voxel(grid)
-    # Bounded: only whether a point is that near counts, and an unbounded search from proxy samples
-    # far from the points (an open scan's closed side) crawls (5e5 of them at 10^6 points: 90 s).
-    distance, _ = cKDTree(points).query(proxy, distance_upper_bound=hole, workers=-1)
-    return np.vstack([points, proxy[distance > hole]])
 
 
 def _sheet_if_closer(target, points, spacing: float, resolution: int):
@@ -466,19 +429,6 @@ def _check_coverage(target, points, widths) -> None:
     if covered < MIN_COVERAGE:
         raise ValueError(f"no closed surface explains these points: only {100 * covered:.0f}% of them lie on the "
                          "reconstructed surface (an open, one-sided scan of a thin or flat object?)")
-
-
-def _choose_grid(grid, spacing: float) -> int:
-    from .._validate import grid_option
-
-    if grid_option(grid) == "auto":
-        return auto_grid(spacing)
-    supported = max_supported_grid(spacing)
-    if grid > supported:
-        warnings.warn(f"grid {grid} is finer than the points support (voxels narrower than their spacing; up to "
-                      f"{supported} is supported): the surface between points comes from the smooth target alone",
-                      stacklevel=4)
-    return grid
 
 
 def _predict(target, grid: int, frame, *, model, threads):
