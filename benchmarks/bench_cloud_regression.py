@@ -8,7 +8,7 @@ uniform outliers in the box, and a one-view range scan (``bench_pointcloud.range
 ``table`` writes the markdown comparison of two such files (``benchmarks/results/cloud_regression.md``).
 
     PYTHONPATH=<before checkout> python benchmarks/bench_cloud_regression.py run before.json
-    PYTHONPATH=<after checkout> python benchmarks/bench_cloud_regression.py run after.json
+    PYTHONPATH=<after checkout> python benchmarks/bench_cloud_regression.py run after.json [--cases noise]
     python benchmarks/bench_cloud_regression.py table before.json after.json [--note TEXT]
 """
 from __future__ import annotations
@@ -43,13 +43,17 @@ def clouds(mesh) -> dict:
             "range scan 1 view": range_scan(vertices, triangles, 1, 30_000, rng)}
 
 
-def run(out: Path) -> None:
+def run(out: Path, cases=None) -> None:
+    """Score every cloud into ``out``; with ``cases`` (substrings of cloud labels) only those, their
+    rows replacing the same rows of an existing ``out``."""
     import voro3d
 
     rows = []
     for name in MESHES:
         mesh = voro3d.load_mesh(DEV / name)
         for label, cloud in clouds(mesh).items():
+            if cases and not any(case in label for case in cases):
+                continue
             start = time.perf_counter()
             try:
                 result = voro3d.reconstruct(cloud)
@@ -61,6 +65,9 @@ def run(out: Path) -> None:
             row["seconds"] = round(time.perf_counter() - start, 1)
             rows.append(row)
             print(json.dumps(row), flush=True)
+    if cases and out.exists():
+        fresh = {(row["mesh"], row["case"]): row for row in rows}
+        rows = [fresh.get((row["mesh"], row["case"]), row) for row in json.loads(out.read_text())["rows"]]
     out.write_text(json.dumps(dict(voro3d=voro3d.__file__, rows=rows), indent=1) + "\n")
 
 
@@ -70,14 +77,16 @@ def table(before: Path, after: Path, out: Path, note: str) -> None:
              "`benchmarks/bench_cloud_regression.py`: `reconstruct` (grid auto) on 4 dev meshes x 5 seeded clouds, "
              "CD x1e5 / NC / F1 against the mesh. Seconds are wall time on a shared machine (contended).", ""]
     lines += [note, ""] if note else []
-    lines += ["| mesh | cloud | CD before | CD after | change | NC before | NC after | F1 before | F1 after |",
-              "|---|---|---|---|---|---|---|---|---|"]
+    lines += ["| mesh | cloud | CD before | CD after | change | NC before | NC after | F1 before | F1 after | faces before "
+              "| faces after | s before | s after |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for a, b in zip(old, new):
         if "error" in a or "error" in b:
-            lines.append(f"| {a['mesh']} | {a['case']} | {a.get('error', '')} | {b.get('error', '')} | | | | | |")
+            lines.append(f"| {a['mesh']} | {a['case']} | {a.get('error', '')} | {b.get('error', '')} | | | | | | | | | |")
             continue
         lines.append(f"| {a['mesh']} | {a['case']} | {a['cd']:.4f} | {b['cd']:.4f} | {100 * (b['cd'] / a['cd'] - 1):+.2f}% | "
-                     f"{a['nc']:.4f} | {b['nc']:.4f} | {a['f1']:.3f} | {b['f1']:.3f} |")
+                     f"{a['nc']:.4f} | {b['nc']:.4f} | {a['f1']:.3f} | {b['f1']:.3f} | {a['faces']:,} | {b['faces']:,} | "
+                     f"{a['seconds']:.1f} | {b['seconds']:.1f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     out.with_suffix(".json").write_text(json.dumps(dict(before=old, after=new), indent=1) + "\n")
 
@@ -85,7 +94,9 @@ def table(before: Path, after: Path, out: Path, note: str) -> None:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("run").add_argument("out", type=Path)
+    runner = sub.add_parser("run")
+    runner.add_argument("out", type=Path)
+    runner.add_argument("--cases", nargs="+", help="only clouds whose label holds one of these, updating OUT's rows")
     compare = sub.add_parser("table")
     compare.add_argument("before", type=Path)
     compare.add_argument("after", type=Path)
@@ -93,7 +104,7 @@ def main():
     compare.add_argument("--note", default="")
     args = parser.parse_args()
     if args.command == "run":
-        run(args.out)
+        run(args.out, args.cases)
     else:
         table(args.before, args.after, args.out, args.note)
 

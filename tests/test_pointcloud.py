@@ -6,7 +6,7 @@ import open3d as o3d
 import pytest
 
 from voro3d.metrics import evaluate
-from voro3d.pointcloud import (cloud_stats, fill_ratio, imls, local_dimension, outlier_mask, reconstruct_points, repair_normals,
+from voro3d.pointcloud import (cloud_mesh, cloud_stats, fill_ratio, imls, local_dimension, outlier_mask, reconstruct_points, repair_normals,
                                transfer_colors)
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.reconstruct import MAX_POISSON_ESCAPE
@@ -208,6 +208,24 @@ def test_grid_auto_and_a_grid_finer_than_the_points_warn_once(sphere_cloud):
         warnings.simplefilter("always")
         reconstruct_points(points[:300], grid=128, steps=5)
     assert sum("finer than the points support" in str(w.message) for w in caught) == 1
+
+
+def test_a_dense_cloud_gets_an_adaptive_band_past_64():
+    # 80k points of the bracket: spacing for a grid over 64; its plates stay coarse, so fewer
+    # generators than the uniform band of its finest grid, and the mesh still follows the part.
+    from voro3d.generators import initial_generators
+
+    mesh = example_mesh("bracket")
+    points, normals = sample_surface(mesh, 80_000, seed=3)
+    shape, target, info = reconstruct_points(points, normals, steps=60)
+    assert info.grid > 64 and info.levels >= 1
+    framed = shape.frame.apply(shape.generators)
+    assert shape.generators.shape[0] < 0.7 * initial_generators(framed, info.grid).shape[0]
+    out = cloud_mesh(shape, target)
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    assert evaluate(out, mesh)["chamfer_x1e5"] < 2.0
+    # An explicit grid is uniform.
+    assert reconstruct_points(points[:20_000], normals[:20_000], grid=40, steps=5)[2].levels == 0
 
 
 def test_same_seed_same_mesh(sphere_cloud):

@@ -44,6 +44,21 @@ def test_samples_are_area_weighted_and_uniform():
     assert (points[first, :2].sum(axis=1) <= 1 + 1e-12).all()
 
 
+def test_density_weights_the_faces():
+    # Equal areas, density 3:1; a zero density is never sampled.
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [10, 0, 0], [11, 0, 0], [10, 1, 0], [20, 0, 0], [21, 0, 0],
+                         [20, 1, 0]], float)
+    triangles = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    points, _ = sample_surface((vertices, triangles), 40_000, seed=0, density=[3.0, 1.0, 0.0])
+    assert (points[:, 0] < 5).mean() == pytest.approx(0.75, abs=0.01)
+    assert not (points[:, 0] > 15).any()
+    np.testing.assert_array_equal(sample_surface((vertices, triangles), 100, seed=1, density=[1.0, 1.0, 1.0])[0],
+                                  sample_surface((vertices, triangles), 100, seed=1)[0])
+    for bad in ([1.0, 1.0], [1.0, -1.0, 1.0], [1.0, np.nan, 1.0]):
+        with pytest.raises(ValueError, match="density must be 3 finite numbers >= 0"):
+            sample_surface((vertices, triangles), 10, density=bad)
+
+
 def test_zero_area_faces_are_never_sampled():
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]], float)
     triangles = np.array([[0, 1, 3], [0, 1, 2], [1, 3, 0]])  # first and last are collinear

@@ -12,8 +12,9 @@ The grid of reconstruct
 - **a mesh:** ``"auto"`` is 32 (``reconstruction.MESH_AUTO_GRID``): a mesh has no point spacing to
   go by. Any larger grid works; there is no upper limit, only cost.
 - **a point cloud:** ``"auto"`` makes voxels about 2.5 median point spacings ``s`` wide (in the fit
-  frame, diagonal 2): ``round(2 / (2.5 s)) + 1``, clipped to 32-64 (``pointcloud.auto_grid``); it
-  never warns. An explicit grid above ``pointcloud.max_supported_grid(s) = int(2 / s) + 1`` (voxels
+  frame, diagonal 2): ``round(2 / (2.5 s)) + 1``, clipped to 32-128 (``pointcloud.auto_grid``), as
+  the finest level of an adaptive band whose voxels coarsen up to 32^3 wherever the surface is flat
+  (``generators.AdaptiveBand``; the learned model takes a uniform grid of at most 64); it never warns. An explicit grid above ``pointcloud.max_supported_grid(s) = int(2 / s) + 1`` (voxels
   narrower than one spacing) still runs, with a ``UserWarning``: between the points the surface then
   comes from the smooth target alone, and no finer grid adds detail the points do not hold.
 - **cost:** the fit samples ``150 g²`` surface points and optimises the corners of the voxels they
@@ -50,8 +51,9 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     grid : int or "auto"
         Grid resolution ``g`` (``g^3`` nodes over the shape's bounding box), at least 4, no
         upper limit. ``"auto"``: for a mesh, 32 (:data:`MESH_AUTO_GRID`: a mesh has no point
-        spacing to go by); for a cloud, voxels about 2.5 median point spacings wide, clipped to
-        32-64 (:func:`voro3d.pointcloud.auto_grid`). A cloud's grid finer than
+        spacing to go by); for a cloud, the finest voxels about 2.5 median point spacings wide,
+        clipped to 32-128 (:func:`voro3d.pointcloud.auto_grid`), coarser where the surface is flat
+        (an adaptive band, :class:`voro3d.generators.AdaptiveBand`); an int is a uniform grid. A cloud's grid finer than
         :func:`voro3d.pointcloud.max_supported_grid` (voxels narrower than one spacing) works
         and warns: the surface between the points then comes from the smooth target alone.
         Time and memory grow about as ``g^2`` (``150 g^2`` surface samples): 128 is practical,

@@ -110,7 +110,8 @@ before (``benchmarks/results/cloud_regression.md``).
 from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement
 from .preprocess import cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, separate_objects
 from .colors import transfer_colors
-from .reconstruct import PointCloudInfo, SnapTarget, auto_grid, cloud_mesh, max_supported_grid, reconstruct_points
+from .reconstruct import PointCloudInfo, SnapTarget, cloud_mesh, reconstruct_points
+from .resolution import auto_grid, max_supported_grid
 from .poisson import PoissonSurface, poisson_surface
 from .surface import TargetSurface, imls, target_surface
 

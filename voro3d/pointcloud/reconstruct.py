@@ -27,7 +27,7 @@ from .normals import estimate_normals, orient_normals, sign_disagreement
 from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
                          outlier_mask)
 from .poisson import poisson_depth, poisson_surface
-from .resolution import auto_grid, choose_grid, fit_band, max_supported_grid, target_samples
+from .resolution import choose_grid, fit_band, target_samples
 from .surface import imls, sheet_surface, target_surface, winding_level
 from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, HEAVY_NOISE, FILTER_WIDTH_PER_NOISE,
@@ -35,7 +35,7 @@ from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, 
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN,
                      SHEET_OFFSET)
 
-__all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh", "auto_grid", "max_supported_grid"]
+__all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
 MIN_POINTS = 100
 # The VoroLoss fit of the target samples, or the learned model on the target's SDF grid.
@@ -65,7 +65,10 @@ class PointCloudInfo:
     target : str
         The target surface: ``"poisson"``, ``"imls"`` or ``"sheet"`` (module docstring).
     grid : int
-        VoroMesh grid used.
+        VoroMesh grid used: its finest level when ``levels > 0``.
+    levels : int
+        Coarser levels of the adaptive band (:class:`voro3d.generators.AdaptiveBand`); 0 for a
+        uniform grid.
     voxel : float
         The grid's voxel, in the input's units.
     seconds : dict
@@ -83,6 +86,7 @@ class PointCloudInfo:
     filtered: bool
     target: str
     grid: int
+    levels: int
     voxel: float
     seconds: dict
 
@@ -145,8 +149,10 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     normals : (n, 3) float64 or None
         Unit outward normals, or None to estimate them.
     grid : int or "auto"
-        VoroMesh grid, at least 4; ``"auto"`` picks it from the spacing (:func:`auto_grid`:
-        32-64). A grid finer than :func:`max_supported_grid` works but warns.
+        VoroMesh grid, at least 4 (uniform); ``"auto"`` picks the finest from the spacing
+        (:func:`auto_grid`: 32-128) and, for the fit, an adaptive band over it
+        (:mod:`voro3d.pointcloud.resolution`). A grid finer than :func:`max_supported_grid` works
+        but warns.
     method : {"fit", "learned"}
         VoroLoss fit, or the ONNX network on the target's signed distance grid.
     steps, seed, device : int, int, str, optional
@@ -226,7 +232,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     if not stats.median_spacing > 1e-9:
         raise ValueError("most points are duplicated (their neighbours sit at the same position): no surface can be "
                          "fitted to them")
-    grid, levels = choose_grid(grid, stats.median_spacing, adaptive=method == "fit")
+    noisy = stats.fine_noise > NOISY * stats.median_spacing
+    grid, levels = choose_grid(grid, stats.median_spacing, adaptive=method == "fit", exact=not noisy)
     seconds["clean"] = time.perf_counter() - start
     report_phase(progress, "clean", f"{len(points):,} points kept of {n_points:,} ({int(outliers.sum()):,} outliers), "
                  f"spacing {stats.median_spacing / frame.scale:.3g}, noise {stats.noise / frame.scale:.3g}, grid {grid}"
@@ -246,7 +253,6 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     report_phase(progress, "normals", normal_source, seconds["normals"])
 
     start = time.perf_counter()
-    noisy = stats.fine_noise > NOISY * stats.median_spacing
     # Clean points are followed closely; noisy ones, or a cloud that held strays, are averaged.
     trusted = not noisy and outliers.mean() < MAX_TRUSTED_OUTLIERS
     # The target's resolution follows the grid only up to MAX_TARGET_GRID; an adaptive band's finer
@@ -318,7 +324,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
                           noisy=bool(noisy), normals=normal_source, smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
-                          target=kind, grid=grid, voxel=grid_voxel(grid) / frame.scale, seconds=seconds)
+                          target=kind, grid=grid, levels=levels, voxel=grid_voxel(grid) / frame.scale, seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
                             smoothing=NOISY_SMOOTHING if noisy else 0.0)
     return shape, surface, info
