@@ -51,7 +51,7 @@ WRAPPED = {
     "voro3d.pointcloud.reconstruct": ["merge_duplicates", "outlier_mask", "cloud_stats", "local_dimension",
                                       "fill_ratio", "estimate_normals", "orient_normals", "sign_disagreement",
                                       "point_areas", "winding_level", "imls", "poisson_surface", "target_surface",
-                                      "_sheet_if_closer", "_check_coverage", "target_samples", "_drop_stray_cells"],
+                                      "_sheet_if_closer", "_check_coverage", "target_samples", "fit_band", "_drop_stray_cells"],
     "voro3d.pointcloud.normals": ["orient_normals", "_outside_votes"],
     "voro3d.pointcloud.surface": ["imls", "_mesh_field"],
     "voro3d.pointcloud.surface.TargetSurface": ["inside", "project"],
@@ -194,9 +194,9 @@ def profile(args) -> dict:
     traced = voro3d.pointcloud.reconstruct_points
 
     def keep_info(*a, **k):
-        shape, info = traced(*a, **k)
-        infos.append(info)
-        return shape, info
+        result = traced(*a, **k)
+        infos.append(result[-1])  # (shape, target, info); (shape, info) before e00553d
+        return result
 
     voro3d.pointcloud.reconstruct_points = keep_info
     memory = Memory(args.interval, args.max_gb * GB)

@@ -367,7 +367,7 @@ def neighbour_table(tree, k: int) -> tuple[np.ndarray, np.ndarray]:
     return distance, neighbour
 
 
-def point_areas(points, *, k: int = 16, tree=None, block: int | None = None) -> np.ndarray:
+def point_areas(points, *, k: int = 16, tree=None, block: int | None = None, distances=None) -> np.ndarray:
     """Surface area each point of a cloud stands for, from its k-th neighbour distance.
 
     A disc of radius r_k around a point holds about k points, so each stands for
@@ -380,6 +380,9 @@ def point_areas(points, *, k: int = 16, tree=None, block: int | None = None) -> 
     tree : scipy.spatial.cKDTree of ``points``, optional
     block : int, optional
         Points queried at a time (:func:`knn_blocks`; only the memory depends on it).
+    distances : (n, j) float64, optional
+        Distances of a kNN query of ``points``, itself first (:func:`neighbour_table`), with
+        ``j > k``: the radii are read from it instead of queried.
 
     Returns
     -------
@@ -389,6 +392,8 @@ def point_areas(points, *, k: int = 16, tree=None, block: int | None = None) -> 
 
     points = as_points(points, "points", min_count=2)
     k = min(positive_int(k, "k", minimum=1), points.shape[0] - 1)
+    if distances is not None and distances.shape == (points.shape[0], distances.shape[1]) and distances.shape[1] > k:
+        return np.pi * distances[:, k] ** 2 / k
     tree = cKDTree(points) if tree is None else tree
     radius = np.empty(points.shape[0])
     for rows, distance, _ in knn_blocks(tree, [k + 1], block=block):

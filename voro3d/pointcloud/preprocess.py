@@ -7,7 +7,7 @@ import numpy as np
 
 from .tuning import STATISTICS_SAMPLE
 
-__all__ = ["CloudStats", "cloud_stats", "outlier_mask", "local_dimension", "fill_ratio", "merge_duplicates",
+__all__ = ["CloudStats", "cloud_stats", "outlier_mask", "outlier_neighbours", "local_dimension", "fill_ratio", "merge_duplicates",
            "separate_objects"]
 
 # Neighbours of the spacing and noise estimates.
@@ -37,6 +37,11 @@ def merge_duplicates(points: np.ndarray, *attributes):
         The distinct positions, in the order they first appear.
     *attributes : (m, c) float64 or None
     """
+    # Copies share their x: with no repeated x (most clouds) there is nothing to merge, which a sort
+    # of one column tells 20x faster than the row-wise unique (1M points: 0.14 s against 2.9 s).
+    x = np.sort(points[:, 0])
+    if not (x[1:] == x[:-1]).any():
+        return (points, *attributes)
     unique, first, index = np.unique(points, axis=0, return_index=True, return_inverse=True)
     if len(unique) == len(points):
         return (points, *attributes)
@@ -123,11 +128,14 @@ class CloudStats:
     fine_noise: float
 
 
-def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTICS_SAMPLE) -> CloudStats:
+def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTICS_SAMPLE,
+                neighbours=None) -> CloudStats:
     """Local spacing and noise level of ``(n, 3)`` points (see :class:`CloudStats`).
 
     The spacing is every point's; the noise is a median over the neighbourhoods of up to
     ``sample`` random points (None: all; ``STATISTICS_SAMPLE``, where it is measured).
+    ``neighbours``: a :func:`~voro3d.queries.neighbour_table` of ``points`` with at least
+    ``SPACING_NEIGHBOURS + 1`` columns, to reuse (:func:`outlier_mask`'s).
     """
     from scipy.spatial import cKDTree
 
@@ -137,7 +145,10 @@ def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTIC
     n = points.shape[0]
     k = min(NOISE_NEIGHBOURS, n - 1)
     near = min(SPACING_NEIGHBOURS, k)
-    distance, neighbour = neighbour_table(tree, near + 1)
+    if neighbours is not None and neighbours[0].shape[0] == n and neighbours[0].shape[1] > near:
+        distance, neighbour = (table[:, :near + 1] for table in neighbours)
+    else:
+        distance, neighbour = neighbour_table(tree, near + 1)
     spacing = _neighbour_median(distance[:, 1:].mean(axis=1), neighbour)
     del distance, neighbour
     noise, fine_noise = [], []
@@ -167,7 +178,8 @@ def _median_residual(blocks: list) -> float:
     return float(np.sqrt(max(np.median(np.concatenate(blocks)), 0.0)))
 
 
-def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, stray_factor: float = 2.0) -> np.ndarray:
+def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, stray_factor: float = 2.0,
+                 neighbours=None) -> np.ndarray:
     """True for points that look like outliers rather than surface samples.
 
     Three tests. A point whose mean distance to its ``STRAY_NEIGHBOURS`` neighbours is more
@@ -183,23 +195,32 @@ def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, s
     Parameters
     ----------
     points : (n, 3) float64
+    neighbours : (distance, neighbour), optional
+        :func:`outlier_neighbours` of ``points``, to reuse; queried when not given.
 
     Returns
     -------
     (n,) bool
     """
-    from scipy.spatial import cKDTree
-
-    from ..queries import neighbour_table
-
-    tree = cKDTree(points) if tree is None else tree
-    distance, neighbour = neighbour_table(tree, min(STRAY_NEIGHBOURS + 1, points.shape[0]))
+    distance, neighbour = outlier_neighbours(points, tree=tree) if neighbours is None else neighbours
     spacing = distance[:, SPACING_NEIGHBOURS]
     sparse = spacing > sparse_factor * np.median(spacing)
     mean = distance[:, 1:].mean(axis=1)
     distance = distance[:, :SPACING_NEIGHBOURS + 1].copy()  # all _small_clusters needs
     stray = mean > stray_factor * _neighbour_median(mean, neighbour[:, 1:])
     return sparse | stray | _small_clusters(distance, neighbour[:, :SPACING_NEIGHBOURS + 1], ~(sparse | stray))
+
+
+def outlier_neighbours(points: np.ndarray, *, tree=None) -> tuple[np.ndarray, np.ndarray]:
+    """The kNN table :func:`outlier_mask` reads (``STRAY_NEIGHBOURS`` and the point itself,
+    :func:`~voro3d.queries.neighbour_table`); the spacing and point areas of the same points can
+    read theirs from it too."""
+    from scipy.spatial import cKDTree
+
+    from ..queries import neighbour_table
+
+    tree = cKDTree(points) if tree is None else tree
+    return neighbour_table(tree, min(STRAY_NEIGHBOURS + 1, points.shape[0]))
 
 
 def _small_clusters(distance, neighbour, candidate, *, reach: float = 4.0, share: float = 0.01):
