@@ -122,7 +122,7 @@ def write(rows, compared, out: Path, args) -> None:
              f"`python benchmarks/bench_adaptive.py` ({args.points:,} true-normal samples per mesh, the point-cloud "
              "path from its Poisson target on; one process, back to back, quiet machine). CD x1e5, NC and F1 against "
              "the mesh; fit seconds are band, samples, fit and labels.", "",
-             "| mesh | generators | grid | tolerance | generators | samples | searches | faces | fit s | CD | F1 | NC |",
+             "| mesh | band | grid | tolerance | generators | samples | searches | faces | fit s | CD | F1 | NC |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['mesh']} | {r['kind']} | {r['grid']} | {r['tolerance'] or '-'} | {r['generators']:,} | "
