@@ -16,6 +16,10 @@ adaptive band with the uniform bands interpolated (log-linearly in generators) a
 of generators, and at the same CD. Writes ``benchmarks/results/adaptive.md``, ``.json``, ``.png``.
 
     python benchmarks/bench_adaptive.py [--meshes organic_bunny.off ...] [--points 1000000]
+    python benchmarks/bench_adaptive.py --pictures   # adaptive_fandisk.png, adaptive_armadillo.png
+
+``--pictures``: instead, ``voro3d.reconstruct`` of the same 10^6 oriented points at ``grid=64`` and
+``grid="auto"`` (the adaptive band), side by side, for fandisk and the armadillo.
 """
 from __future__ import annotations
 
@@ -141,6 +145,8 @@ def write(rows, compared, out: Path, args) -> None:
                      f"{c['nc']:.4f} | {_fmt(same['nc'])} | {c['faces']:,} | {_fmt(same['faces'], 0)} | "
                      f"{_fmt(c['uniform_generators_for_same_cd'], 0)} | {_fmt(at_cd.get('faces'), 0)} | "
                      f"{c['fit_seconds']:.1f} | {_fmt(at_cd.get('fit_seconds'), 1)} |")
+    lines += ["", "`adaptive_fandisk.png`, `adaptive_armadillo.png` (`--pictures`): `reconstruct` of the same 10^6 points at "
+              "grid 64 and grid auto, side by side."]
     (out / "adaptive.md").write_text("\n".join(lines) + "\n")
     _plot(rows, out / "adaptive.png")
 
@@ -169,6 +175,22 @@ def _plot(rows, path: Path) -> None:
     figure.savefig(path, dpi=90)
 
 
+def pictures(n_points: int, out: Path) -> None:
+    import voro3d
+    from voro3d.render.pictures import render_meshes
+    from voro3d.sampling import sample_surface
+
+    for name, view, up in (("cad_fandisk.obj", None, "z"), ("organic_armadillo.obj", "front", "y")):
+        mesh = voro3d.load_mesh(DEV / name)
+        points, normals = sample_surface(mesh, n_points, seed=1)
+        meshes, titles = [], []
+        for grid, label in ((64, "uniform 64"), ("auto", "auto (adaptive 128-32)")):
+            meshes.append(voro3d.reconstruct(np.hstack([points, normals]), grid=grid))
+            titles.append(f"{Path(name).stem} {label}: {len(meshes[-1].triangles):,} faces")
+        render_meshes(meshes, out / f"adaptive_{Path(name).stem.split('_')[-1]}.png", titles=titles, size=(560, 440),
+                      view=view, up=up)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--meshes", nargs="+", default=list(MESHES))
@@ -177,8 +199,12 @@ def main() -> None:
     parser.add_argument("--finest", type=int, default=128)
     parser.add_argument("--tolerances", type=float, nargs="+", default=[0.1, 0.05, 0.03])
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--pictures", action="store_true", help="only the side-by-side pictures")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
+    if args.pictures:
+        pictures(args.points, args.out)
+        return
     rows = [row for name in args.meshes for row in run_mesh(name, args.points, args.uniform, args.finest, args.tolerances)]
     write(rows, summary(rows), args.out, args)
 
