@@ -43,14 +43,22 @@ def initial_generators(samples, grid: int) -> np.ndarray:
     """
     points = as_points(samples, "samples")
     grid = positive_int(grid, "grid", minimum=2)
-    h = grid_voxel(grid)
-    voxel = np.clip(np.floor((points + 1.0) / h).astype(np.int64), 0, grid - 2)
+    voxel = _voxel_ijk(points, grid)
     voxel = np.unique((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2])
     # A voxel's lowest corner has the voxel's own index; the others add C-order node strides.
     strides = _CORNERS @ np.array([grid * grid, grid, 1], dtype=np.int64)
-    nodes = np.unique((voxel[:, None] + strides).reshape(-1))
+    return _node_coordinates(np.unique((voxel[:, None] + strides).reshape(-1)), grid)
+
+
+def _voxel_ijk(points: np.ndarray, grid: int) -> np.ndarray:
+    """(m, 3) int64: the voxel (i, j, k) of each point, points outside clipped into the boundary voxels."""
+    return np.clip(np.floor((points + 1.0) / grid_voxel(grid)).astype(np.int64), 0, grid - 2)
+
+
+def _node_coordinates(nodes: np.ndarray, grid: int) -> np.ndarray:
+    """(n, 3) float64 positions of C-order node indices: the coordinates of grid_nodes, bit for bit,
+    so rows equal ``grid_nodes(grid)[nodes]``."""
     ijk = np.stack([nodes // (grid * grid), (nodes // grid) % grid, nodes % grid], axis=1)
-    # The coordinates of grid_nodes, bit for bit, so rows equal ``grid_nodes(grid)[nodes]``.
     return np.linspace(-1.0, 1.0, grid)[ijk]
 
 
@@ -95,7 +103,7 @@ class AdaptiveBand:
         if not (np.isfinite(tolerance) and tolerance >= 0):
             raise ValueError(f"tolerance must be a finite number >= 0, got {tolerance}")
         self.tolerance = float(tolerance)
-        ijk = self._voxels(points)
+        ijk = _voxel_ijk(points, self.grid)
         limit = (self.tolerance * grid_voxel(self.grid)) ** 2
         self.leaves = [np.empty(0, np.int64)] * (self.levels + 1)
         active = np.ones(points.shape[0], bool)
@@ -112,10 +120,6 @@ class AdaptiveBand:
             # Points of split voxels go on to the next level down.
             active[np.flatnonzero(active)[flat[group]]] = False
 
-    def _voxels(self, points: np.ndarray) -> np.ndarray:
-        """Level-0 voxel (i, j, k) of each point, points outside clipped into the boundary voxels."""
-        return np.clip(np.floor((points + 1.0) / grid_voxel(self.grid)).astype(np.int64), 0, self.grid - 2)
-
     def _size(self, level: int) -> int:
         """Voxels per axis at ``level`` (the last one cut off by the box)."""
         return ((self.grid - 2) >> level) + 1
@@ -126,7 +130,7 @@ class AdaptiveBand:
 
     def level_of(self, points) -> np.ndarray:
         """(m,) int64: the level of the leaf holding each point; 0 where none does (off the band)."""
-        ijk = self._voxels(np.asarray(points, dtype=np.float64))
+        ijk = _voxel_ijk(np.asarray(points, dtype=np.float64), self.grid)
         level = np.zeros(ijk.shape[0], np.int64)
         found = np.zeros(ijk.shape[0], bool)
         for current in range(self.levels, 0, -1):
@@ -148,9 +152,7 @@ class AdaptiveBand:
             ijk = np.stack([leaves // (size * size), (leaves // size) % size, leaves % size], axis=1)
             corners = np.minimum((ijk[:, None, :] + _CORNERS) << level, self.grid - 1)
             nodes.append((corners @ strides).reshape(-1))
-        nodes = np.unique(np.concatenate(nodes))
-        ijk = np.stack([nodes // (self.grid * self.grid), (nodes // self.grid) % self.grid, nodes % self.grid], axis=1)
-        return np.linspace(-1.0, 1.0, self.grid)[ijk]
+        return _node_coordinates(np.unique(np.concatenate(nodes)), self.grid)
 
     def density(self, points) -> np.ndarray:
         """(m,) float64: samples per area at each point as a share of level 0's, ``4^-level``: the
