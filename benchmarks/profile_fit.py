@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from voro3d import fitting as fit_module
+from voro3d._torchfit import TorchLoop
 from voro3d.generators import initial_generators
 from voro3d.frames import fit_frame
 from voro3d.io import load_mesh, mesh_arrays
@@ -94,8 +95,8 @@ def step_row(name, mesh, grid, steps):
     vertices, triangles = mesh_arrays(mesh)
     frame = fit_frame((vertices, triangles))
     samples, _ = sample_surface((frame.apply(vertices), triangles), fit_module.SAMPLES_PER_FACE * grid**2, seed=0)
-    loop = fit_module._TorchLoop(samples, initial_generators(samples, grid), grid=grid, k=11, batch_fraction=0.2,
-                                 device=torch.device("cpu"))
+    loop = TorchLoop(samples, initial_generators(samples, grid), grid=grid, k=11, batch_fraction=0.2,
+                     device=torch.device("cpu"))
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     parts = dict.fromkeys(["window", "pairs", "loss_fwd_bwd", "adam_clamp_displacement", "search"], 0.0)

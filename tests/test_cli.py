@@ -37,6 +37,8 @@ def _error(capsys) -> str:
     (["-o", "{tmp}/out.ply", "--grid", "3"], "must be 'auto' or an integer >= 4, got '3'"),
     (["-o", "{tmp}/out.ply", "--grid", "fine"], "must be 'auto' or an integer >= 4"),
     (["-o", "{tmp}/out.ply", "--steps", "0"], "must be an integer >= 1"),
+    (["-o", "{tmp}/out.ply", "--engine", "dask"], "invalid choice: 'dask'"),
+    (["-o", "{tmp}/out.ply", "--workers", "0"], "must be an integer >= 1"),
 ])
 def test_bad_options_are_refused_before_any_work(tmp_path, cloud, capsys, arguments, match):
     start = time.perf_counter()

@@ -3,6 +3,7 @@ import open3d as o3d
 import pytest
 import torch
 
+from voro3d.fitloop import Adam
 from voro3d import fitting as fit_module
 from voro3d.extract import extract_mesh
 from voro3d.voromesh import VoroMesh
@@ -114,7 +115,7 @@ def test_adam_matches_torch_optim():
     start = torch.randn(3, 50, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     ours, theirs = start.clone().requires_grad_(), start.clone().requires_grad_()
     with torch.no_grad():  # the one Adam of both backends (voro3d.fitloop), here on a torch tensor
-        adam = fit_module.Adam(ours)
+        adam = Adam(ours)
     reference = torch.optim.Adam([theirs], lr=0.01, foreach=False)
     schedule = torch.optim.lr_scheduler.MultiStepLR(reference, milestones=[3, 6], gamma=0.5)
     for step in range(10):

@@ -1,7 +1,7 @@
 """The fit loop's CPU backend, without torch: each step's VoroLoss and gradient and the kNN searches
 come from the compiled kernel ``voro3d._fitkernel``, Adam is a few numpy operations.
 
-``voro3d.fitting._TorchLoop`` is the same loop in torch (the reference, and the CUDA path); this
+:class:`voro3d._torchfit.TorchLoop` is the same loop in torch (the reference, and the CUDA path); this
 one spares a CPU fit the 2-6 s of importing torch and its per-operation overhead.
 
 Threads, determinism, the reference
@@ -79,6 +79,8 @@ class KernelLoop(FitLoop):
                                    threads=self.threads)
 
     def _descend(self, adam: Adam, lr: float) -> None:
+        if self.fixed is not None:
+            self.grad[self.fixed] = 0.0
         adam.step(self.grad, lr)
         np.clip(self.positions, -1.0, 1.0, out=self.positions)
 

@@ -85,7 +85,7 @@ def _reconstruct(args) -> None:
         source = np.hstack(sample_surface(load_mesh(args.input), args.sample, seed=0 if args.seed is None else args.seed))
     mesh = reconstruct(source, args.grid, method=args.method, steps=args.steps, seed=args.seed,
                        device=args.device, denoise=args.denoise, allow_open=args.allow_open, clean=not args.no_clean,
-                       progress=not args.quiet)
+                       engine=args.engine, workers=args.workers, progress=not args.quiet)
     save_mesh(mesh, args.output)
     _maybe_render(args, [mesh], [f"VoroMesh ({args.method}, grid {args.grid})"])
     _say(args, f"wrote {args.output} ({len(mesh.triangles)} triangles, watertight)")
@@ -283,7 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     _mesh_output_options(rebuild)
     rebuild.add_argument("--grid", type=grid_argument, default="auto",
                          help="grid resolution g (g^3 nodes), an integer >= 4, or 'auto' (default: from the point "
-                              "spacing, up to 128 where the surface has detail; 32 for a mesh)")
+                              "spacing, up to 128 where the surface has detail, 256 for a dense cloud over 2 million "
+                              "points; 32 for a mesh)")
     rebuild.add_argument("--method", choices=("fit", "learned"), default="fit",
                          help="direct VoroLoss fit (default) or the shipped learned model (ONNX)")
     # Fit options default to None: the fit's defaults apply, and --method learned refuses them.
@@ -298,6 +299,10 @@ def build_parser() -> argparse.ArgumentParser:
     smoothing.add_argument("--no-denoise", dest="denoise", action="store_const", const=False,
                            help="point clouds: never smooth the points")
     _allow_open_option(rebuild)
+    rebuild.add_argument("--engine", choices=("local", "ray"), default="local",
+                         help="where a large cloud's tiles are fitted (over 2 million points): a local process pool "
+                              "(default) or Ray tasks (pip install 'voro3d[ray]'); the same mesh either way")
+    rebuild.add_argument("--workers", type=positive_argument, help="tiles fitted at once (default: one per CPU)")
     rebuild.add_argument("--sample", type=positive_argument, metavar="N",
                          help="mesh input: reconstruct N points sampled on it (with its normals) as a point cloud, "
                               "for an open or broken mesh")

@@ -1,6 +1,6 @@
 """The fit loop's skeleton, one for both backends: batches, learning-rate schedule, Adam, candidate refresh.
 
-A backend (:class:`voro3d._cpufit.KernelLoop`, the compiled CPU kernel; ``voro3d.fitting._TorchLoop``,
+A backend (:class:`voro3d._cpufit.KernelLoop`, the compiled CPU kernel; :class:`voro3d._torchfit.TorchLoop`,
 torch on CPU or CUDA) holds the samples, the generators and their kNN candidates, and gives one
 batch's loss and gradient, the Adam step and clamp, and the kNN search; :meth:`FitLoop.run` is the
 rest. Batches are windows of consecutive samples at a random offset: the samples are i.i.d. on the
@@ -58,8 +58,12 @@ class FitLoop(ABC):
     """Adam on VoroLoss over windows of the samples; the backend supplies the operations below.
 
     Attributes a backend sets: ``n_samples`` (samples, without the repeated window), ``batch``
-    (window length) and ``searches`` (kNN searches so far, the first included).
+    (window length) and ``searches`` (kNN searches so far, the first included). ``fixed``, None or
+    an (n,) bool mask (numpy, or a tensor on the loop's device): generators whose gradient is
+    zeroed, so that Adam never moves them (a tile's frozen neighbours).
     """
+
+    fixed = None
 
     def run(self, steps: int, *, lr: float, milestones, gamma: float, seed: int, refresh_distance: float,
             progress: bool = False) -> np.ndarray:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,7 +31,6 @@ from ._cpufit import KernelLoop, cpu_threads
 from ._extras import require
 from ._validate import as_points, grid_option, mesh_grid, positive_int, trusted
 from .delaunay import triangulate
-from .fitloop import Adam, FitLoop, spatial_order
 from .frames import fit_frame
 from .generators import initial_generators
 from .geometry import grid_voxel
@@ -40,7 +40,8 @@ from .queries import InsideOutside
 from .sampling import sample_surface
 from .voromesh import VoroMesh
 
-__all__ = ["FitInfo", "MAX_REFRESH_DISTANCE", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples"]
+__all__ = ["FitInfo", "MAX_REFRESH_DISTANCE", "REFRESH_VOXELS", "SAMPLES_PER_FACE", "fit", "fit_samples",
+           "fit_schedule", "labelled_voromesh", "optimise_generators", "refresh_reach"]
 
 # Surface samples per grid face, n_samples = SAMPLES_PER_FACE * grid**2 (official code).
 SAMPLES_PER_FACE = 150
@@ -70,6 +71,16 @@ _CPU_KERNEL = True
 # (profile_fit.py --schedule-study: the same mean CD, F1 and NC over the dev meshes at 32 and 64),
 # and the step and each search cost a quarter less.
 FIT_K = 8
+
+
+class Optimised(NamedTuple):
+    """What :func:`optimise_generators` returns."""
+
+    generators: np.ndarray
+    losses: list
+    final_loss: float
+    searches: int
+    init_seconds: float
 
 
 @dataclass(frozen=True)
@@ -238,69 +249,130 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     """
     start = time.perf_counter()
     grid = grid_option(grid, allow_auto=False)
-    steps = positive_int(steps, "steps")
-    k = positive_int(k, "k", minimum=2)
+    schedule = fit_schedule(steps=steps, lr=lr, milestones=milestones, gamma=gamma, batch_fraction=batch_fraction,
+                            k=k, seed=seed, device=device)
+    k = schedule["k"]
+    samples = as_points(samples, "samples", min_count=4)
+    threads = cpu_threads() if threads is None else positive_int(threads, "threads")
+
+    reach = None
+    if generators is not None:
+        generators = as_points(generators, "generators", min_count=k)
+        reach = refresh_reach(generators, grid)
+    with trusted():
+        generators = initial_generators(samples, grid) if generators is None else generators
+        run = optimise_generators(samples, generators, grid, reach=reach, threads=threads, progress=progress,
+                                  **schedule)
+        generators = run.generators
+        optimised = time.perf_counter()
+
+        result = labelled_voromesh(generators, inside, grid, frame=frame)
+        generators = result.generators
+        done = time.perf_counter()
+        info = FitInfo(
+            n_samples=samples.shape[0], n_generators=generators.shape[0], final_loss=run.final_loss, losses=run.losses,
+            candidate_searches=run.searches, sampling_seconds=0.0,
+            init_seconds=run.init_seconds, optimisation_seconds=optimised - start - run.init_seconds,
+            occupancy_seconds=done - optimised, total_seconds=done - start,
+        )
+        return result, info
+
+
+def fit_schedule(*, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 200, 250), gamma: float = 0.5,
+                 batch_fraction: float = 0.2, k: int = FIT_K, seed: int = 0, device: str = "cpu") -> dict:
+    """The options of :func:`fit_samples`' loop, checked, defaults filled in: the keywords of
+    :func:`optimise_generators` but ``threads`` and ``progress``.
+
+    Raises
+    ------
+    ValueError
+        A step count, k or milestone that is not a positive int, lr not finite and positive, gamma
+        or batch_fraction outside (0, 1], or an unknown or unavailable device.
+    """
     if not (np.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be a finite number > 0, got {lr}")
     if not 0 < gamma <= 1:
         raise ValueError(f"gamma must be in (0, 1], got {gamma}")
     if not 0 < batch_fraction <= 1:
         raise ValueError(f"batch_fraction must be in (0, 1], got {batch_fraction}")
-    samples = as_points(samples, "samples", min_count=4)
-    milestones = sorted(positive_int(step, "milestones") for step in milestones)
-    device = _device(device)
-    threads = cpu_threads() if threads is None else positive_int(threads, "threads")
+    return dict(steps=positive_int(steps, "steps"), lr=float(lr),
+                milestones=sorted(positive_int(step, "milestones") for step in milestones), gamma=float(gamma),
+                batch_fraction=float(batch_fraction), k=positive_int(k, "k", minimum=2), seed=seed,
+                device=_device(device))
 
-    reach = None
-    if generators is not None:
-        generators = as_points(generators, "generators", min_count=k)
-        reach = _refresh_reach(generators, grid)
-    with trusted():
-        generators = initial_generators(samples, grid) if generators is None else generators
-        schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
-                        refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE),
-                        progress=progress)
-        if device == "cpu" and _CPU_KERNEL:
-            loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads,
-                              reach=reach)
-            initialised = time.perf_counter()
+
+def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None) -> VoroMesh:
+    """The VoroMesh of fitted ``generators`` (fit frame), each cell labelled by ``inside`` (a fit-frame test).
+
+    Triangulated once, in the result's units (through ``frame.invert``; None keeps the fit frame):
+    the labels, any later pass and the extraction share it.
+    """
+    if frame is not None:
+        generators = frame.invert(generators)
+        inside = _in_frame(inside, frame)
+    triangulation = triangulate(generators)
+    occupancy = label_cells(generators, inside, triangulation=triangulation)
+    return VoroMesh(generators, occupancy, grid=grid, frame=frame, triangulation=triangulation)
+
+
+def optimise_generators(samples: np.ndarray, generators: np.ndarray, grid: int, *, reach: np.ndarray | None,
+                        steps: int, lr: float, milestones, gamma: float, batch_fraction: float, k: int, seed: int,
+                        device: str, threads: int, fixed: np.ndarray | None = None, progress: bool = False):
+    """Adam on the VoroLoss of ``samples`` over ``generators``: the loop of :func:`fit_samples`, on checked inputs.
+
+    Parameters
+    ----------
+    samples : (m, 3) float64
+        Surface samples, fit frame.
+    generators : (n, 3) float64
+        Initial generators, fit frame.
+    grid : int
+        The finest voxel's grid (the kNN refresh distance is in its voxels).
+    reach : (n,) float32 or None
+        Each generator's nearest-neighbour distance in voxels (:func:`refresh_reach`), None for a
+        uniform band.
+    steps, lr, milestones, gamma, batch_fraction, k, seed, device, threads, progress
+        As in :func:`fit`; ``device`` checked, ``threads`` an int.
+    fixed : (n,) bool, optional
+        Generators that stay where they are (their neighbours' cells still see them).
+
+    Returns
+    -------
+    Optimised
+        ``generators`` (n, 3) float64, optimised, fit frame, in the given order; ``losses``,
+        ``final_loss``, ``searches`` (kNN candidate searches) and ``init_seconds`` (the loop's setup).
+    """
+    start = time.perf_counter()
+    schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
+                    refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE), progress=progress)
+    if device == "cpu" and _CPU_KERNEL:
+        loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads,
+                          reach=reach)
+        loop.fixed = fixed
+        initialised = time.perf_counter()
+        losses = loop.run(steps, **schedule)
+        final_loss = loop.loss()
+    else:
+        import torch
+
+        from ._torchfit import TorchLoop
+
+        loop = TorchLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
+                         device=torch.device(device), reach=reach)
+        loop.fixed = None if fixed is None else torch.as_tensor(fixed, device=loop.generators_t.device)
+        initialised = time.perf_counter()
+        previous = torch.get_num_threads()
+        if device == "cpu":
+            torch.set_num_threads(1)
+        try:
             losses = loop.run(steps, **schedule)
             final_loss = loop.loss()
-        else:
-            import torch
-
-            loop = _TorchLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction,
-                              device=torch.device(device), reach=reach)
-            initialised = time.perf_counter()
-            previous = torch.get_num_threads()
-            if device == "cpu":
-                torch.set_num_threads(1)
-            try:
-                losses = loop.run(steps, **schedule)
-                final_loss = loop.loss()
-            finally:
-                torch.set_num_threads(previous)
-        generators = loop.generators()
-        optimised = time.perf_counter()
-
-        # Triangulated once, in the result's units: the labels, any later pass and the extraction share it.
-        if frame is not None:
-            generators = frame.invert(generators)
-            inside = _in_frame(inside, frame)
-        triangulation = triangulate(generators)
-        occupancy = label_cells(generators, inside, triangulation=triangulation)
-        result = VoroMesh(generators, occupancy, grid=grid, frame=frame, triangulation=triangulation)
-        done = time.perf_counter()
-        info = FitInfo(
-            n_samples=samples.shape[0], n_generators=generators.shape[0], final_loss=final_loss, losses=losses,
-            candidate_searches=loop.searches, sampling_seconds=0.0,
-            init_seconds=initialised - start, optimisation_seconds=optimised - initialised,
-            occupancy_seconds=done - optimised, total_seconds=done - start,
-        )
-        return result, info
+        finally:
+            torch.set_num_threads(previous)
+    return Optimised(loop.generators(), losses, final_loss, loop.searches, initialised - start)
 
 
-def _refresh_reach(generators: np.ndarray, grid: int) -> np.ndarray:
+def refresh_reach(generators: np.ndarray, grid: int) -> np.ndarray:
     """(n,) float32, ``>= 1``: each generator's nearest-neighbour distance in ``grid`` voxels.
 
     Given generators (an adaptive band's) are spaced by their own leaves' voxels: one moves as far
@@ -334,95 +406,3 @@ def _device(device) -> str:
         raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
     return str(torch_device)
 
-
-class _TorchLoop(FitLoop):
-    """The torch backend of :mod:`voro3d.fitloop` (the reference, and the CUDA path): samples,
-    generators and their kNN candidates, coordinate-major."""
-
-    def __init__(self, samples: np.ndarray, generators: np.ndarray, *, grid: int, k: int,
-                 batch_fraction: float, device: torch.device, reach: np.ndarray | None = None):
-        import torch
-
-        self.n_samples = samples.shape[0]
-        self.batch = max(1, int(round(batch_fraction * self.n_samples)))
-        wrapped = np.concatenate([samples, samples[: self.batch]])
-        self.samples_t = torch.tensor(wrapped.T, dtype=torch.float32, device=device).contiguous()
-        self.generators_t = torch.nn.Parameter(
-            torch.tensor(generators.T, dtype=torch.float32, device=device).contiguous())
-        self.k = min(k, generators.shape[0])
-        self.reach = None if reach is None else torch.tensor(reach, device=device)
-        # The samples never move, so they are sorted for the KD-tree once.
-        order = spatial_order(samples, grid)
-        self.search_samples = np.ascontiguousarray(samples[order], dtype=np.float32)
-        self.search_rank = torch.empty(order.size, dtype=torch.int64)
-        self.search_rank[torch.from_numpy(order)] = torch.arange(order.size)
-        self.searches = 0
-        self._search()
-
-    def _search(self):
-        import torch
-
-        from .loss import nearest_indices
-
-        sites = self.generators_t.detach()
-        positions = np.ascontiguousarray(sites.t().cpu().numpy())
-        found = torch.from_numpy(nearest_indices(self.search_samples, positions, self.k))
-        # Back to the samples' order, coordinate-major, with the first window repeated at the end.
-        found = found.index_select(0, self.search_rank).t()
-        self.candidates_t = torch.cat([found, found[:, : self.batch]], dim=1).to(sites.device)
-        self.searched_at = sites.clone()
-        self.searches += 1
-
-    def _optimizer(self) -> Adam:
-        import torch
-
-        with torch.no_grad():
-            return Adam(self.generators_t)
-
-    def _gradient(self, offset: int) -> float:
-        import torch
-
-        from .loss import PAIR_BLOCK, bisector_distance, bisector_pairs
-
-        generators_t = self.generators_t
-        generators_t.grad = None
-        loss = torch.zeros((), device=generators_t.device)
-        # The batch's loss is a sum over samples, so blocks of it can be backpropagated one at a time:
-        # their temporaries then stay in cache instead of being allocated afresh.
-        for start in range(0, self.batch, PAIR_BLOCK):
-            window = slice(offset + start, offset + min(start + PAIR_BLOCK, self.batch))
-            samples_t = self.samples_t[:, window].contiguous()
-            nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window])
-            block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
-            block_loss.backward()
-            loss += block_loss.detach()
-        return float(loss)
-
-    def _descend(self, adam: Adam, lr: float) -> None:
-        import torch
-
-        with torch.no_grad():
-            adam.step(self.generators_t.grad, lr)
-            self.generators_t.clamp_(-1.0, 1.0)
-
-    def _moved(self):
-        import torch
-
-        with torch.no_grad():
-            moved = (self.generators_t - self.searched_at).square_().sum(0)
-            return (moved if self.reach is None else moved / self.reach.square()).amax()
-
-    def loss(self) -> float:
-        """VoroLoss over all samples with the current candidates."""
-        import torch
-
-        from .loss import bisector_distance, bisector_pairs
-
-        with torch.no_grad():
-            samples_t = self.samples_t[:, : self.n_samples]
-            sites = self.generators_t.detach()
-            nearest, other = bisector_pairs(samples_t, sites, self.candidates_t[:, : self.n_samples])
-            return float(bisector_distance(samples_t, sites, nearest, other).square().mean())
-
-    def generators(self) -> np.ndarray:
-        return self.generators_t.detach().t().cpu().numpy().astype(np.float64)

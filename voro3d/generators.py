@@ -11,6 +11,8 @@ __all__ = ["AdaptiveBand", "grid_nodes", "initial_generators"]
 
 # Fewest points in a voxel whose plane fit decides it is flat.
 _MIN_PLANE_POINTS = 8
+# Points a block of AdaptiveBand.level_of: its voxel indices and keys of 10^7 points at once take over 1 GB.
+_BLOCK = 1 << 20
 # Offsets of a voxel's 8 corners from its lowest corner, in node steps.
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.int64)
 
@@ -130,7 +132,12 @@ class AdaptiveBand:
 
     def level_of(self, points) -> np.ndarray:
         """(m,) int64: the level of the leaf holding each point; 0 where none does (off the band)."""
-        ijk = _voxel_ijk(np.asarray(points, dtype=np.float64), self.grid)
+        points = np.asarray(points, dtype=np.float64)
+        return np.concatenate([self._level_block(points[start:start + _BLOCK])
+                               for start in range(0, points.shape[0], _BLOCK)] or [np.zeros(0, np.int64)])
+
+    def _level_block(self, points: np.ndarray) -> np.ndarray:
+        ijk = _voxel_ijk(points, self.grid)
         level = np.zeros(ijk.shape[0], np.int64)
         found = np.zeros(ijk.shape[0], bool)
         for current in range(self.levels, 0, -1):

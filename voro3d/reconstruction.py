@@ -19,6 +19,9 @@ The grid of reconstruct
   comes from the smooth target alone, and no finer grid adds detail the points do not hold.
 - **cost:** the fit samples ``150 g²`` surface points and optimises the corners of the voxels they
   fall in (also about ``g²``), so time and memory grow about as ``g²``: 128 is practical, 256 slow.
+- **a cloud of more than 2 million points** is reconstructed from a uniform subset of a million
+  (at the target's resolution the rest add nothing), its fit in tiles run by a local process pool
+  or by Ray (``engine=``, ``workers=``; :mod:`voro3d.pointcloud.tiles`): one closed mesh either way.
   The learned model (``method="learned"``) was trained at 32 and 64.
 """
 from __future__ import annotations
@@ -29,13 +32,15 @@ import numpy as np
 
 from ._validate import MESH_AUTO_GRID, as_points, grid_option, mesh_grid, method_options, positive_int, trusted
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
+from .pointcloud.tiles import ENGINES, analysis_subset
 from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
 def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
                 device: str | None = None, model=None, threads: int | None = None, denoise=None,
-                allow_open: bool = False, clean: bool = True, progress: bool = False):
+                allow_open: bool = False, clean: bool = True, engine: str = "local", workers: int | None = None,
+                progress: bool = False):
     """Watertight VoroMesh surface of a point cloud or mesh.
 
     Parameters
@@ -81,6 +86,14 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         then fit the vertices, at most a quarter voxel each, to the input mesh or the cloud's
         smooth target surface (:func:`voro3d.snapping.snap_to_surface`), every guarantee kept;
         ``False`` keeps the Voronoi faces as they are.
+    engine : {"local", "ray"}
+        Point clouds of more than 2 million points (``pointcloud.tuning.TILE_POINTS``) are planned
+        on a subset of a million, and a dense clean one is fitted to all its points in tiles
+        (:mod:`voro3d.pointcloud.tiles`): in a local process pool, or as Ray tasks
+        (``pip install 'voro3d[ray]'``; a local Ray is started unless one is running). The mesh is
+        the same either way.
+    workers : int, optional
+        Tiles fitted at once; default one per CPU.
     progress : bool
         Show a progress bar over the fit's steps (the learned method has no loop to show) and,
         for a point cloud, one line on stderr per phase with what it chose and its time.
@@ -111,12 +124,15 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
             raise ValueError("denoise applies to point clouds only; a mesh input takes denoise=None")
     elif allow_open:
         raise ValueError("allow_open applies to meshes only; a point cloud may be open as it is")
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    tiling = dict(engine=engine, workers=None if workers is None else positive_int(workers, "workers"))
     # The input was checked by _read: the stages below trust it.
     with trusted():
         if kind == "mesh":
             return _mesh_to_mesh(data, mesh_grid(grid), method, options,
                                  allow_open=allow_open, clean=clean, progress=progress)
-        return _cloud_to_mesh(*data, grid, method, options, denoise=denoise, clean=clean, progress=progress)
+        return _cloud_to_mesh(*data, grid, method, options | tiling, denoise=denoise, clean=clean, progress=progress)
 
 
 def _mesh_to_mesh(mesh, grid: int, method: str, options: dict, *, allow_open: bool, clean: bool, progress: bool):
@@ -137,13 +153,13 @@ def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *,
     """A cloud's mesh, object by object (:func:`voro3d.pointcloud.separate_objects`), checked against its points."""
     import open3d as o3d
 
-    from .pointcloud import cloud_mesh, reconstruct_points, separate_objects, transfer_colors
+    from .pointcloud import cloud_mesh, reconstruct_points, transfer_colors
     from .pointcloud.reconstruct import report_phase
 
     mesh = o3d.geometry.TriangleMesh()
     # Objects far apart are reconstructed one by one, each at its own grid; their meshes lie in
     # disjoint boxes, so together they are still closed and free of crossings.
-    groups = separate_objects(points, min_points=MIN_POINTS)
+    groups = _objects(points)
     for number, group in enumerate(groups):
         if len(groups) > 1:
             report_phase(progress, "object", f"{number + 1} of {len(groups)} far apart: {len(group):,} points")
@@ -151,12 +167,33 @@ def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *,
                                                  grid=grid, method=method, denoise=denoise, progress=progress,
                                                  **options)
         piece = cloud_mesh(shape, target, clean=clean, progress=progress)
-        _check_fit(piece, points[group], info.voxel)
+        subset = analysis_subset(len(group), 0)
+        _check_fit(piece, points[group if subset is None else group[subset]], info.voxel)
         if colors is not None:
             piece.vertex_colors = o3d.utility.Vector3dVector(
                 transfer_colors(np.asarray(piece.vertices), points[group], colors[group]))
         mesh += piece
     return mesh
+
+
+def _objects(points) -> list:
+    """:func:`~voro3d.pointcloud.separate_objects`; on a dense cloud, of a subset, each point then in its
+    nearest subset point's object (the pieces of a neighbour graph, far apart, are the same)."""
+    from scipy.spatial import cKDTree
+
+    from .pointcloud import separate_objects
+
+    subset = analysis_subset(len(points), 0)
+    if subset is None:
+        return separate_objects(points, min_points=MIN_POINTS)
+    groups = separate_objects(points[subset], min_points=MIN_POINTS)
+    if len(groups) == 1:
+        return [np.arange(len(points))]
+    label = np.empty(len(subset), np.int64)
+    for number, group in enumerate(groups):
+        label[group] = number
+    nearest = label[cKDTree(points[subset]).query(points, workers=-1)[1]]
+    return [np.flatnonzero(nearest == number) for number in range(len(groups))]
 
 
 class VoroMeshStage:
@@ -172,16 +209,22 @@ class VoroMeshStage:
 
     def __init__(self, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
                  device: str | None = None, model=None, threads: int | None = None, denoise=None,
-                 allow_open: bool = False, clean: bool = True, progress: bool = False):
+                 allow_open: bool = False, clean: bool = True, engine: str = "local", workers: int | None = None,
+                 progress: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        if engine not in ENGINES:
+            raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
         options = method_options(method, "fit", steps=steps, seed=seed, device=device)
         options.update(method_options(method, "learned", model=model))
         if threads is not None:
             options["threads"] = positive_int(threads, "threads")
+        if workers is not None:
+            options["workers"] = positive_int(workers, "workers")
         grid = grid_option(grid)
         self.options = dict(grid=grid, method=method, denoise=None if denoise is None else bool(denoise),
-                            allow_open=bool(allow_open), clean=bool(clean), progress=progress, **options)
+                            allow_open=bool(allow_open), clean=bool(clean), engine=engine, progress=progress,
+                            **options)
 
     def __call__(self, geometry):
         return reconstruct(geometry, **self.options)

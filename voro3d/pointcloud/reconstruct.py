@@ -29,6 +29,7 @@ from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, f
 from .poisson import poisson_depth, poisson_surface
 from .resolution import choose_grid, fit_band, target_samples
 from .surface import imls, sheet_surface, target_surface, winding_level
+from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, HEAVY_NOISE, FILTER_WIDTH_PER_NOISE,
                      DENSE_SPACINGS, MAX_TARGET_GRID, STRAY_CELL_SHARE, CLOSED_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE,
@@ -71,6 +72,9 @@ class PointCloudInfo:
         uniform grid.
     voxel : float
         The grid's voxel, in the input's units.
+    tiles : int
+        Tiles the fit was cut into (:mod:`voro3d.pointcloud.tiles`): 0 for a cloud of at most
+        ``TILE_POINTS`` points, whose fit is one loop.
     seconds : dict
         ``clean`` (outliers, statistics), ``normals``, ``surface`` (field and proxy mesh),
         ``samples`` (sampling and projection), ``fit`` (VoroLoss fit and cell labels).
@@ -88,6 +92,7 @@ class PointCloudInfo:
     grid: int
     levels: int
     voxel: float
+    tiles: int
     seconds: dict
 
 
@@ -123,7 +128,7 @@ def report_phase(progress: bool, phase: str, text: str, seconds: float | None = 
 
 def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit", steps: int | None = None,
                        seed: int | None = None, device: str | None = None, model=None, threads: int | None = None,
-                       denoise=None, progress: bool = False):
+                       denoise=None, engine: str = "local", workers: int | None = None, progress: bool = False):
     """VoroMesh of a point cloud, through a smooth target surface.
 
     1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), outliers
@@ -141,7 +146,13 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        one-sided scan the IMLS field near the points and their winding number away from them,
        on a grid twice as fine as the VoroMesh grid, meshed by Marching Cubes.
     5. The VoroLoss samples: ``150 grid^2`` of them from the target mesh, or, for a dense scan,
-       the points themselves (:func:`_fit_samples`); the target labels the cells.
+       the points themselves (:func:`~voro3d.pointcloud.resolution.target_samples`); the target
+       labels the cells.
+
+    A cloud of more than ``TILE_POINTS`` points is reconstructed from a uniform subset of
+    ``ANALYSIS_POINTS`` (:func:`~voro3d.pointcloud.tiles.analysis_subset`: at the target's resolution
+    the rest adds nothing), and its fit runs in tiles of at most ``TILE_SAMPLES`` samples
+    (:mod:`voro3d.pointcloud.tiles`), as tasks of a local process pool or of Ray.
 
     Parameters
     ----------
@@ -167,6 +178,11 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         The smoothing pass of step 3: None turns it on above ``NOISY`` spacings of estimated
         fine-scale noise, and for sparse one-sided scans; True or False force it. The target's
         filtering (step 4) needs it on.
+    engine : {"local", "ray"}
+        Where a tiled fit's tiles run: a local process pool, or Ray tasks
+        (:func:`~voro3d.pointcloud.tiles.fit_tiles`); the same mesh either way.
+    workers : int, optional
+        Tiles fitted at once; default one per CPU.
 
     Returns
     -------
@@ -191,18 +207,24 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
             raise ValueError(f"normals must have the points' shape {points.shape}, got {normals.shape}")
     with trusted():
         return _reconstruct_points(points, normals, grid=grid, method=method, steps=steps, seed=seed, device=device,
-                                   model=model, threads=threads, denoise=denoise, progress=progress)
+                                   model=model, threads=threads, denoise=denoise, engine=engine, workers=workers,
+                                   progress=progress)
 
 
-def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, model, threads, denoise, progress):
+def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, model, threads, denoise, engine, workers,
+                        progress):
     """:func:`reconstruct_points` on checked inputs."""
     from scipy.spatial import cKDTree
 
-    from .._validate import method_options
+    from .._validate import method_options, positive_int
     from ..frames import fit_frame
 
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    if workers is not None:
+        workers = positive_int(workers, "workers")
     fit_options = method_options(method, "fit", steps=steps, seed=seed, device=device)
     model = method_options(method, "learned", model=model).get("model")
     if method == "fit":
@@ -212,6 +234,10 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     start = time.perf_counter()
     n_points = points.shape[0]
     points, normals = merge_duplicates(points, normals)
+    # A dense cloud is reconstructed from a subset (see the docstring).
+    distinct, subset = points.shape[0], analysis_subset(points.shape[0], fit_options.get("seed", 0))
+    if subset is not None:
+        points, normals = points[subset], None if normals is None else normals[subset]
     frame = fit_frame(points)
     framed = frame.apply(points)
     tree = cKDTree(framed)
@@ -241,7 +267,9 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     noisy = stats.fine_noise > NOISY * stats.median_spacing
     grid, levels = choose_grid(grid, stats.median_spacing, adaptive=method == "fit", exact=not noisy)
     seconds["clean"] = time.perf_counter() - start
-    report_phase(progress, "clean", f"{len(points):,} points kept of {n_points:,} ({int(outliers.sum()):,} outliers), "
+    report_phase(progress, "clean", f"{len(points):,} points kept of "
+                 f"{n_points:,}{f' (a subset of {distinct:,} distinct)' if subset is not None else ''} "
+                 f"({int(outliers.sum()):,} outliers), "
                  f"spacing {stats.median_spacing / frame.scale:.3g}, noise {stats.noise / frame.scale:.3g}, grid {grid}"
                  f"{f' adaptive over {levels + 1} levels' if levels else ''}",
                  seconds["clean"])
@@ -314,6 +342,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                  f"filter {'on' if filtered and kind == 'poisson' else 'off'}", seconds["surface"])
 
     start = time.perf_counter()
+    n_tiles = 0
     if method == "learned":
         shape = _predict(target, grid, frame, model=model, threads=threads)
         seconds["samples"], seconds["fit"] = 0.0, time.perf_counter() - start
@@ -324,15 +353,24 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
         samples = target_samples(target, surface_vertices, framed, grid, band=band, seed=fit_options.get("seed", 0))
         seconds["samples"] = time.perf_counter() - start
         start = time.perf_counter()
-        shape, _ = fit_samples(samples, target.inside, grid, frame=frame, threads=threads, progress=progress,
-                               generators=None if band is None else band.generators(), **fit_options)
+        generators = None if band is None else band.generators()
+        if subset is None:
+            shape, _ = fit_samples(samples, target.inside, grid, frame=frame, threads=threads, progress=progress,
+                                   generators=generators, **fit_options)
+        else:
+            shape, n_tiles = fit_in_tiles(samples, generators, target.inside, grid, levels=levels, frame=frame,
+                                          engine=engine, workers=workers, threads=threads, progress=progress,
+                                          options=fit_options)
+        n_samples = len(samples)
         shape = _drop_stray_cells(shape)
         seconds["fit"] = time.perf_counter() - start
-    report_phase(progress, "fit", f"{method}, {len(shape.generators):,} generators, {len(samples) if method == 'fit' else 0:,} samples", seconds["fit"])
+    report_phase(progress, "fit", f"{method}, {len(shape.generators):,} generators, "
+                 f"{n_samples if method == 'fit' else 0:,} samples{f', {n_tiles} tiles' if n_tiles else ''}", seconds["fit"])
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
                           noisy=bool(noisy), normals=normal_source, smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
-                          target=kind, grid=grid, levels=levels, voxel=grid_voxel(grid) / frame.scale, seconds=seconds)
+                          target=kind, grid=grid, levels=levels, voxel=grid_voxel(grid) / frame.scale, tiles=n_tiles,
+                          seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
                             smoothing=NOISY_SMOOTHING if noisy else 0.0)
     return shape, surface, info
