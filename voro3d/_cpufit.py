@@ -25,7 +25,7 @@ from . import _fitkernel
 from .fitloop import Adam, FitLoop, spatial_order
 from .geometry import grid_voxel
 
-__all__ = ["KernelLoop", "cpu_threads"]
+__all__ = ["KernelLoop", "available_cpus", "cpu_threads"]
 
 
 def cpu_threads() -> int:
@@ -37,6 +37,11 @@ def cpu_threads() -> int:
     setting = os.environ.get("OMP_NUM_THREADS", "")
     if setting.isdigit() and int(setting) > 0:
         return int(setting)
+    return available_cpus()
+
+
+def available_cpus() -> int:
+    """The CPUs this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 

@@ -6,9 +6,12 @@
 """
 from __future__ import annotations
 
+import contextlib
+import logging
+import os
 from importlib import import_module
 
-__all__ = ["MissingExtra", "require"]
+__all__ = ["MissingExtra", "ray_session", "require"]
 
 
 class MissingExtra(ImportError):
@@ -37,3 +40,20 @@ def require(module: str, feature: str, extras: str | None = None):
         if error.name != module:  # installed, but something it imports is not: that error says more
             raise
         raise MissingExtra(f"{feature} needs {module}: pip install 'voro3d[{extras or module}]'") from None
+
+
+@contextlib.contextmanager
+def ray_session(num_cpus: int, *, address: str | None = None):
+    """Ray for ``engine='ray'``: the running one, else one started here (``num_cpus`` CPUs, or joined at
+    ``address``) and shut down on leaving; yields the ``ray`` module."""
+    ray = require("ray", "engine='ray'")
+    started_here = not ray.is_initialized()
+    if started_here:
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report: runs offline
+        options = {"address": address} if address else {"num_cpus": num_cpus, "include_dashboard": False}
+        ray.init(**options, log_to_driver=False, logging_level=logging.WARNING)
+    try:
+        yield ray
+    finally:
+        if started_here:
+            ray.shutdown()

@@ -283,8 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
     _mesh_output_options(rebuild)
     rebuild.add_argument("--grid", type=grid_argument, default="auto",
                          help="grid resolution g (g^3 nodes), an integer >= 4, or 'auto' (default: from the point "
-                              "spacing, up to 128 where the surface has detail, 256 for a dense cloud over 2 million "
-                              "points; 32 for a mesh)")
+                              "spacing, up to 128 where the surface has detail; 32 for a mesh)")
     rebuild.add_argument("--method", choices=("fit", "learned"), default="fit",
                          help="direct VoroLoss fit (default) or the shipped learned model (ONNX)")
     # Fit options default to None: the fit's defaults apply, and --method learned refuses them.

@@ -19,10 +19,10 @@ The grid of reconstruct
   comes from the smooth target alone, and no finer grid adds detail the points do not hold.
 - **cost:** the fit samples ``150 g²`` surface points and optimises the corners of the voxels they
   fall in (also about ``g²``), so time and memory grow about as ``g²``: 128 is practical, 256 slow.
+  The learned model (``method="learned"``) was trained at 32 and 64.
 - **a cloud of more than 2 million points** is reconstructed from a uniform subset of a million
   (at the target's resolution the rest add nothing), its fit in tiles run by a local process pool
   or by Ray (``engine=``, ``workers=``; :mod:`voro3d.pointcloud.tiles`): one closed mesh either way.
-  The learned model (``method="learned"``) was trained at 32 and 64.
 """
 from __future__ import annotations
 
@@ -87,8 +87,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         smooth target surface (:func:`voro3d.snapping.snap_to_surface`), every guarantee kept;
         ``False`` keeps the Voronoi faces as they are.
     engine : {"local", "ray"}
-        Point clouds of more than 2 million points (``pointcloud.tuning.TILE_POINTS``) are planned
-        on a subset of a million, and a dense clean one is fitted to all its points in tiles
+        Point clouds of more than 2 million points (``pointcloud.tuning.TILE_POINTS``) are
+        reconstructed from a uniform subset of a million, their fit in tiles
         (:mod:`voro3d.pointcloud.tiles`): in a local process pool, or as Ray tasks
         (``pip install 'voro3d[ray]'``; a local Ray is started unless one is running). The mesh is
         the same either way.

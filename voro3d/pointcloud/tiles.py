@@ -13,11 +13,11 @@ again: a script that reconstructs a large cloud keeps its work under ``if __name
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._cpufit import available_cpus
 from .tuning import ANALYSIS_POINTS, SEAM_STEPS, SEAM_WIDTH, TILE_MARGIN, TILE_POINTS, TILE_SAMPLES
 
 __all__ = ["ENGINES", "Tile", "analysis_subset", "fit_in_tiles", "fit_tiles", "seam_tile", "split_tiles"]
@@ -54,7 +54,7 @@ def analysis_subset(count: int, seed: int) -> np.ndarray | None:
 
     The statistics a cloud's plan rests on (spacing, noise, normals' signs, the target surface at
     ``MAX_TARGET_GRID``) read the same from a uniform subset of a dense cloud: only its spacing
-    scales, as ``sqrt(n / ANALYSIS_POINTS)``.
+    scales, as ``sqrt(count / ANALYSIS_POINTS)``.
     """
     if count <= TILE_POINTS:
         return None
@@ -193,7 +193,7 @@ def fit_tiles(samples: np.ndarray, generators: np.ndarray, grid: int, *, reach: 
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    cpus = available_cpus()
     workers = max(1, min(cpus if workers is None else workers, len(tiles)))
     threads = max(1, cpus // workers) if threads is None else threads
     tasks = [(samples[tile.samples], generators[tile.generators], None if reach is None else reach[tile.generators],
@@ -204,11 +204,11 @@ def fit_tiles(samples: np.ndarray, generators: np.ndarray, grid: int, *, reach: 
         fitted[tile.generators[:tile.n_core]] = core
     joint = seam_tile(samples, fitted, tiles, width=seam, margin=seam)
     if joint.n_core:
-        settle = dict(options, threads=threads * workers, steps=SEAM_STEPS, milestones=[], hold=True,
+        settle = dict(options, threads=threads * workers, steps=SEAM_STEPS, milestones=[],
                       lr=options["lr"] * options["gamma"] ** len(options["milestones"]))
         fitted[joint.generators[:joint.n_core]] = _fit_tile(
             samples[joint.samples], fitted[joint.generators], None if reach is None else reach[joint.generators],
-            joint.n_core, grid, settle)
+            joint.n_core, grid, settle, hold=True)
     return fitted
 
 
@@ -233,16 +233,12 @@ def _cut_distance(points: np.ndarray, tiles: list) -> np.ndarray:
     return distance
 
 
-def _fit_tile(samples, generators, reach, n_core, grid, options) -> np.ndarray:
-    """(n_core, 3): one tile's fit, its core generators (the others held where they are with ``options["hold"]``)."""
+def _fit_tile(samples, generators, reach, n_core, grid, options, *, hold: bool = False) -> np.ndarray:
+    """(n_core, 3): one tile's fit, its core generators (the first ``n_core``); with ``hold``, the others stay put."""
     from ..fitting import optimise_generators
 
-    options = dict(options)
-    if options.pop("hold", False):
-        fixed = np.zeros(generators.shape[0], bool)
-        fixed[n_core:] = True
-        options["fixed"] = fixed
-    return optimise_generators(samples, generators, grid, reach=reach, **options).generators[:n_core]
+    fixed = np.arange(generators.shape[0]) >= n_core if hold else None
+    return optimise_generators(samples, generators, grid, reach=reach, fixed=fixed, **options).generators[:n_core]
 
 
 def _bar(total: int, progress: bool):
@@ -273,17 +269,9 @@ def _run_local(tasks, grid, options, workers, progress) -> list:
 
 def _run_ray(tasks, grid, options, workers, progress) -> list:
     """Each task's core generators, in order, as Ray tasks (``pip install 'voro3d[ray]'``)."""
-    import logging
+    from .._extras import ray_session
 
-    from .._extras import require
-
-    ray = require("ray", "engine='ray'")
-    started_here = not ray.is_initialized()
-    if started_here:
-        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report: runs offline
-        ray.init(num_cpus=workers * options["threads"], include_dashboard=False, log_to_driver=False,
-                 logging_level=logging.WARNING)
-    try:
+    with ray_session(workers * options["threads"]) as ray:
         fit = ray.remote(num_cpus=options["threads"], max_retries=0)(_fit_tile)
         refs = [fit.remote(*task, grid, options) for task in tasks]
         with _bar(len(refs), progress) as bar:
@@ -292,6 +280,3 @@ def _run_ray(tasks, grid, options, workers, progress) -> list:
                 done, pending = ray.wait(pending, num_returns=1)
                 bar.update(len(done))
         return ray.get(refs)
-    finally:
-        if started_here:
-            ray.shutdown()
