@@ -235,7 +235,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
 
     from voro3d.io import mesh_arrays, save_mesh
     from voro3d.metrics import evaluate
-    from voro3d.pointcloud import cloud_mesh, reconstruct_points, transfer_colors
+    from voro3d.pointcloud import cloud_mesh, colored_mesh, reconstruct_points
     from voro3d.reconstruction import _check_fit
     from voro3d.watertight import check_watertight
 
@@ -250,7 +250,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
         mesh = cloud_mesh(shape, target)
         _check_fit(mesh, points, info.voxel)  # what reconstruct refuses is an error here too
         if colours is not None:
-            mesh.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(mesh.vertices), points, colours))
+            mesh = colored_mesh(mesh, points, colours)
         seconds = time.perf_counter() - start
         report = check_watertight(mesh)
         row["voromesh"] = dict(evaluate(mesh, source), seconds=seconds, split=info.seconds, grid=info.grid,

@@ -18,8 +18,14 @@ the parent sums the resident memory (RSS) of the child and all its descendants e
 compared vertex for vertex; ``tiles.png`` shows voro3d's mesh beside Poisson depth 9's. Methods run one after another on an otherwise idle machine; the load
 average before each is recorded. Writes ``benchmarks/results/tiles.md``, ``tiles.json`` and ``tiles.png``.
 
+``--seams``: instead, the ablation behind ``SEAM_WIDTH`` / ``SEAM_STEPS`` (``pointcloud/tuning.py``):
+400k exact samples of the mesh, a 63^3 band over 2 levels, fitted whole and in 4 and 8 tiles
+(:func:`voro3d.pointcloud.tiles.fit_tiles`), with and without the seam pass, seeds 0 and 1, the
+cells labelled by the mesh itself and scored (``tiles_seams.md``, ``.json``).
+
     python benchmarks/bench_tiles.py [--mesh organic_bunny.off] [--points 10000000] [--workers 2]
         [--methods voro3d-local voro3d-ray poisson9 poisson10]
+    python benchmarks/bench_tiles.py --seams [--mesh organic_bunny.off]
 """
 from __future__ import annotations
 
@@ -89,10 +95,14 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=["voro3d-local", "voro3d-ray", "poisson9", "poisson10"])
     parser.add_argument("--interval", type=float, default=0.5)
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--seams", action="store_true", help="the seam pass's ablation instead")
     args = parser.parse_args()
     if not (DEV / args.mesh).exists():
         raise SystemExit(f"no dev mesh {DEV / args.mesh}")
     sys.path.insert(0, str(ROOT))
+    if args.seams:
+        seams(args.mesh, args.out)
+        return
     import open3d as o3d
 
     from voro3d.io import load_mesh
@@ -121,6 +131,51 @@ def main() -> None:
     result = dict(date=time.strftime("%Y-%m-%d %H:%M"), cpus=os.cpu_count(), rows=rows, local_equals_ray=same)
     (args.out / "tiles.json").write_text(json.dumps(result, indent=1))
     (args.out / "tiles.md").write_text(_table(result))
+
+
+def seams(name: str, out: Path) -> None:
+    """Whole fit against 4 and 8 tiles with and without the seam pass: CD, NC, F1 (module docstring)."""
+    from voro3d.fitting import fit_schedule, labelled_voromesh, refresh_reach
+    from voro3d.frames import fit_frame
+    from voro3d.generators import AdaptiveBand
+    from voro3d.io import load_mesh
+    from voro3d.metrics import evaluate
+    from voro3d.pointcloud.tiles import fit_tiles, split_tiles
+    from voro3d.queries import InsideOutside
+    from voro3d.sampling import sample_surface
+
+    mesh = load_mesh(DEV / name)
+    points, _ = sample_surface(mesh, 400_000, seed=1)
+    frame = fit_frame(points)
+    samples = frame.apply(points)
+    grid, levels = 63, 1
+    generators = AdaptiveBand(samples, grid, levels=levels, tolerance=0.05).generators()
+    reach = refresh_reach(generators, grid)
+    coarsest = 2.0 / (grid - 1) * 2**levels
+    inside = InsideOutside(mesh)
+    rows = []
+    for label, max_samples, seam in (("whole", 10**9, 0.0), ("4 tiles, no seam pass", 100_000, 0.0),
+                                     ("4 tiles, seam pass", 100_000, coarsest), ("8 tiles, no seam pass", 50_000, 0.0),
+                                     ("8 tiles, seam pass", 50_000, coarsest)):
+        for seed in (0, 1):
+            tiles = split_tiles(samples, generators, max_samples=max_samples, margin=2 * coarsest)
+            fitted = fit_tiles(samples, generators, grid, reach=reach, tiles=tiles, seam=seam, workers=1,
+                               options=fit_schedule(steps=200, seed=seed))
+            shape = labelled_voromesh(fitted, lambda q: inside.occupancy(frame.invert(q)), grid, frame=frame)
+            scores = evaluate(shape.to_open3d(clean=False), mesh)
+            rows.append(dict(run=label, tiles=len(tiles), seed=seed, cd=scores["chamfer_x1e5"], nc=scores["nc"],
+                             f1=scores["f1"]))
+            print(rows[-1], flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tiles_seams.json").write_text(json.dumps(dict(date=time.strftime("%Y-%m-%d %H:%M"), mesh=name, rows=rows),
+                                                     indent=1))
+    lines = ["# Tiles: the seam pass", "", f"400k exact samples of `{name}`, a 63^3 adaptive band over 2 levels, "
+             "200 steps, the cells labelled by the mesh, the Voronoi surface uncleaned; tiles with a margin of 2 "
+             "coarsest voxels; the seam pass refits the generators within 1 coarsest voxel of a cut for 100 steps "
+             "with their neighbours held (`python benchmarks/bench_tiles.py --seams`).", "",
+             "| run | tiles | seed | CD x1e5 | NC | F1 |", "|---|---|---|---|---|---|"]
+    lines += [f"| {r['run']} | {r['tiles']} | {r['seed']} | {r['cd']:.4f} | {r['nc']:.4f} | {r['f1']:.4f} |" for r in rows]
+    (out / "tiles_seams.md").write_text("\n".join(lines) + "\n")
 
 
 def _picture(folder: Path, rows: list, path: Path) -> None:

@@ -128,7 +128,7 @@ CLOUD = np.random.default_rng(0).normal(size=(500, 3))
     (lambda: voro3d.reconstruct(CLOUD, method="learned", steps=10, seed=1),
      r"takes no steps or seed \(only method='fit' uses them\)"),
     (lambda: voro3d.VoroMeshStage(method="learned", steps=10), "method='learned' takes no steps"),
-    (lambda: voro3d.reconstruct(example_mesh("sphere"), denoise=True), "denoise applies to point clouds only"),
+    (lambda: voro3d.reconstruct(example_mesh("sphere"), plan={"denoise": "on"}), "plan applies to point clouds only"),
     (lambda: voro3d.pointcloud.reconstruct_points(CLOUD, method="learned", device="cuda"),
      "method='learned' takes no device"),
     (lambda: voro3d.pointcloud.reconstruct_points(CLOUD, method="poisson"), "method must be one of"),

@@ -57,7 +57,7 @@ def test_fit_takes_the_same_grid_rule(tmp_path, knot, capsys):
 
 
 @pytest.mark.parametrize("extra, match", [
-    (["--denoise"], "--denoise applies to point clouds only; a mesh input takes neither --denoise nor --no-denoise"),
+    (["--denoise", "on"], "--normals, --denoise, --filter and --target apply to point clouds only"),
     (["--method", "learned", "--steps", "5"], "--method learned takes no --steps (only --method fit uses it)"),
 ])
 def test_errors_name_the_flags(tmp_path, knot, capsys, extra, match):

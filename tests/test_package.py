@@ -115,7 +115,7 @@ def test_cli_reconstruct_point_cloud(tmp_path, capsys):
 
     points, normals = sample_surface(example_mesh("torus"), 5000, seed=0)
     np.save(tmp_path / "cloud.npy", np.hstack([points, normals]))
-    for method, extra in (("fit", ["--steps", "40"]), ("learned", []), ("fit", ["--steps", "40", "--denoise"])):
+    for method, extra in (("fit", ["--steps", "40"]), ("learned", []), ("fit", ["--steps", "40", "--denoise", "on"])):
         out = tmp_path / f"{method}{len(extra)}.ply"
         assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(out), "--grid", "16",
                      "--method", method, "-q", *extra]) == 0

@@ -6,8 +6,8 @@ import open3d as o3d
 import pytest
 
 from voro3d.metrics import evaluate
-from voro3d.pointcloud import (cloud_mesh, cloud_stats, fill_ratio, imls, local_dimension, outlier_mask, reconstruct_points, repair_normals,
-                               transfer_colors)
+from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio, imls, local_dimension, outlier_mask,
+                               reconstruct_points, repair_normals, transfer_colors)
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.reconstruct import MAX_POISSON_ESCAPE
 from voro3d.pointcloud.surface import sheet_surface, winding_level
@@ -200,6 +200,37 @@ def test_colours_are_carried_over(sphere_cloud):
     assert not reconstruct(points, **FAST).has_vertex_colors()
 
 
+def test_colours_that_vary_fast_survive_the_large_faces(sphere_cloud):
+    """Stripes narrower than the VoroMesh's faces: the mesh is split flat until it has about one
+    vertex per point, so the colours interpolated over the surface follow them; the surface stays."""
+    points, normals = sphere_cloud
+    stripes = np.repeat((np.sin(12.0 * points[:, 2:3]) > 0).astype(float), 3, axis=1)
+    shape, target, _ = reconstruct_points(points, normals, **FAST)
+    mesh = cloud_mesh(shape, target)
+    split = colored_mesh(mesh, points, stripes)
+    assert len(mesh.vertices) < len(points) <= len(split.vertices) <= 64 * len(mesh.vertices)
+    assert len(split.triangles) in [len(mesh.triangles) * 4**s for s in (1, 2, 3)]
+    assert check_watertight(split).watertight
+    assert abs(signed_volume(np.asarray(split.vertices), np.asarray(split.triangles))
+               - signed_volume(np.asarray(mesh.vertices), np.asarray(mesh.triangles))) < 1e-9
+    truth, _ = sample_surface(example_mesh("sphere"), 5000, seed=3)
+    expected = (np.sin(12.0 * truth[:, 2]) > 0).astype(float)
+
+    def error(coloured):
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(coloured))
+        hit = scene.compute_closest_points(o3d.core.Tensor(truth.astype(np.float32)))
+        corners = np.asarray(coloured.triangles)[hit["primitive_ids"].numpy().astype(np.int64)]
+        uv = hit["primitive_uvs"].numpy()
+        weights = np.column_stack([1.0 - uv.sum(axis=1), uv])
+        values = np.einsum("nk,nk->n", weights, np.asarray(coloured.vertex_colors)[corners, 0])
+        return np.abs(values - expected).mean()
+
+    unsplit = o3d.geometry.TriangleMesh(mesh)
+    unsplit.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(mesh.vertices), points, stripes))
+    assert error(split) < 0.8 * error(unsplit)
+
+
 def test_grid_auto_and_a_grid_finer_than_the_points_warn_once(sphere_cloud):
     points, _ = sphere_cloud
     shape, target, info = reconstruct_points(points[:1000], grid="auto", steps=20)
@@ -319,23 +350,20 @@ def test_a_cloud_mesh_is_fitted_to_the_target_surface():
                           np.asarray(shape.to_open3d(clean=False).vertices))
 
 
-def test_a_heavily_noisy_target_is_filtered(monkeypatch):
+def test_a_heavily_noisy_target_is_filtered():
     """A torus at 1% noise reads 1.1 octree cells of noise: filtered, CD 5.63 -> 4.99 and NC 0.983 ->
-    0.990 on the output; at 0.5% (noisy, but under HEAVY_NOISE cells), or with denoise=False, it is not."""
-    import voro3d.pointcloud.reconstruct as reconstruct_module
+    0.990 on the output; at 0.5% (noisy, but under HEAVY_NOISE cells), or with denoise "off", it is not."""
     from voro3d.pointcloud import cloud_mesh
 
     mesh, noisy = _noisy_cloud("torus", 4000)
     scores = {}
-    for heavy in (reconstruct_module.HEAVY_NOISE, np.inf):
-        monkeypatch.setattr(reconstruct_module, "HEAVY_NOISE", heavy)
-        shape, target, info = reconstruct_points(noisy, grid=32, steps=150)
-        assert info.filtered == np.isfinite(heavy)
+    for plan in (None, {"filter": "off"}):
+        shape, target, info = reconstruct_points(noisy, grid=32, steps=150, plan=plan)
+        assert info.filtered == (plan is None) and info.plan.filter == ("on" if plan is None else "off")
         scores[info.filtered] = evaluate(cloud_mesh(shape, target), mesh, n_samples=20000)
     assert scores[True]["chamfer_x1e5"] < 0.95 * scores[False]["chamfer_x1e5"]
     assert scores[True]["nc"] > scores[False]["nc"]
-    monkeypatch.undo()
-    assert not reconstruct_points(noisy, grid=32, steps=2, denoise=False)[2].filtered
+    assert not reconstruct_points(noisy, grid=32, steps=2, plan={"denoise": "off"})[2].filtered
     points, _ = sample_surface(mesh, 4000, seed=5)
     light = points + np.random.default_rng(11).normal(scale=0.005 * np.linalg.norm(np.ptp(points, axis=0)),
                                                       size=points.shape)

@@ -111,7 +111,7 @@ def test_noise_is_detected_and_smoothed_without_flags(torus_cloud):
     mesh, points, _ = torus_cloud
     diagonal = np.linalg.norm(points.max(0) - points.min(0))
     noisy = points + np.random.default_rng(3).normal(scale=0.01 * diagonal, size=points.shape)
-    raw = evaluate(reconstruct(noisy, grid=32, steps=100, denoise=False), mesh, n_samples=20000)
+    raw = evaluate(reconstruct(noisy, grid=32, steps=100, plan={"denoise": "off"}), mesh, n_samples=20000)
     out = reconstruct(noisy, grid=32, steps=100)
     assert check_watertight(out).watertight
     scores = evaluate(out, mesh, n_samples=20000)
@@ -150,8 +150,8 @@ def test_bad_options(torus_cloud):
         reconstruct(np.hstack([points, np.zeros_like(points)]), **FAST)
     with pytest.raises(ValueError, match="grid must be"):
         reconstruct(points, grid="fine")
-    with pytest.raises(ValueError, match="denoise applies to point clouds only"):
-        reconstruct(example_mesh("torus"), denoise=True, **FAST)
+    with pytest.raises(ValueError, match="plan applies to point clouds only"):
+        reconstruct(example_mesh("torus"), plan={"denoise": "on"}, **FAST)
     with pytest.raises(FileNotFoundError):
         reconstruct("/nonexistent/cloud.ply")
 

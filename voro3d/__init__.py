@@ -38,7 +38,7 @@ One style for every public function (``tests/test_api.py`` walks them all and ch
   both: ``reconstruct(cloud, method="learned", steps=100)`` raises ``method='learned' takes no steps
   (only method='fit' uses it)``; likewise ``seed`` and ``device`` there, in ``VoroMeshStage`` and in
   ``pointcloud.reconstruct_points``; ``run_batch(method="learned", steps=...)`` and
-  ``run_batch(method="fit", model=...)``; ``denoise`` with a mesh; ``voroloss(k=..., candidates=...)``;
+  ``run_batch(method="fit", model=...)``; ``plan`` with a mesh; ``voroloss(k=..., candidates=...)``;
   ``voro3d predict sdf.npy --grid 32``. So the fit's options of ``reconstruct`` default to None,
   meaning the fit's own defaults (400 steps, 200 for a cloud, seed 0, ``"cpu"``). ``progress`` is taken by every
   method: it only asks to see whatever runs.

@@ -15,6 +15,11 @@ from pathlib import Path
 
 from ._extras import MissingExtra
 
+# The choices of a cloud's plan (voro3d.pointcloud.CloudPlan; a test keeps them equal), written out
+# so that --help need not import the point-cloud package; "auto" lets the analysis decide.
+PLAN_FIELDS = {"normals": ("auto", "check", "trust", "estimate"), "denoise": ("auto", "on", "off"),
+               "filter": ("auto", "on", "off"), "target": ("auto", "poisson", "imls", "sheet")}
+
 __all__ = ["build_parser", "main"]
 
 
@@ -83,8 +88,9 @@ def _reconstruct(args) -> None:
         from .sampling import sample_surface
 
         source = np.hstack(sample_surface(load_mesh(args.input), args.sample, seed=0 if args.seed is None else args.seed))
+    chosen = {name: getattr(args, name) for name in PLAN_FIELDS if getattr(args, name) != "auto"}
     mesh = reconstruct(source, args.grid, method=args.method, steps=args.steps, seed=args.seed,
-                       device=args.device, denoise=args.denoise, allow_open=args.allow_open, clean=not args.no_clean,
+                       device=args.device, plan=chosen or None, allow_open=args.allow_open, clean=not args.no_clean,
                        engine=args.engine, workers=args.workers, progress=not args.quiet)
     save_mesh(mesh, args.output)
     _maybe_render(args, [mesh], [f"VoroMesh ({args.method}, grid {args.grid})"])
@@ -136,10 +142,12 @@ def positive_argument(text: str) -> int:
 # Python spellings in the library's messages, as the flags that set them.
 _FLAG_NAMES = [
     (re.compile(r"allow_open=True"), "--allow-open"),
-    (re.compile(r"denoise=None"), "neither --denoise nor --no-denoise"),
+    (re.compile(r"plan applies to point clouds only; a mesh input takes plan=None"),
+     "--normals, --denoise, --filter and --target apply to point clouds only"),
+    (re.compile(r"\bplan (normals|denoise|filter|target)\b"), r"--\1"),
     (re.compile(r"reconstruct points sampled on it as a point cloud"), "reconstruct points sampled on it (--sample N)"),
     (re.compile(r"method='(\w+)'"), r"--method \1"),
-    (re.compile(r"\b(steps|seed|device|denoise|grid|allow_open)\b(?= (must|applies|or|\())"),
+    (re.compile(r"\b(steps|seed|device|grid|allow_open)\b(?= (must|applies|or|\())"),
      lambda match: "--" + match.group(1).replace("_", "-")),
 ]
 
@@ -291,12 +299,17 @@ def build_parser() -> argparse.ArgumentParser:
                          help="Adam steps of --method fit, default 400 for a mesh, 200 for a point cloud")
     rebuild.add_argument("--seed", type=int, help="seed of --method fit, default 0")
     rebuild.add_argument("--device", help="cpu or cuda, for --method fit (default cpu)")
-    smoothing = rebuild.add_mutually_exclusive_group()
-    smoothing.add_argument("--denoise", dest="denoise", action="store_const", const=True, default=None,
-                           help="point clouds: always smooth the points onto the IMLS surface (default: when noise "
-                                "is detected)")
-    smoothing.add_argument("--no-denoise", dest="denoise", action="store_const", const=False,
-                           help="point clouds: never smooth the points")
+    rebuild.add_argument("--normals", choices=PLAN_FIELDS["normals"], default="auto",
+                         help="point clouds: check the given normals (re-orient inconsistent signs, flip inward "
+                              "ones), trust them as they are, or estimate new ones (default: check if given)")
+    rebuild.add_argument("--denoise", choices=PLAN_FIELDS["denoise"], default="auto",
+                         help="point clouds: smooth the points onto their IMLS surface (default: when noise is "
+                              "detected, and for sparse one-sided scans)")
+    rebuild.add_argument("--filter", choices=PLAN_FIELDS["filter"], default="auto",
+                         help="point clouds: bilateral-filter a Poisson target (default: for heavy noise)")
+    rebuild.add_argument("--target", choices=PLAN_FIELDS["target"], default="auto",
+                         help="point clouds: the surface fitted to: screened Poisson, IMLS (open scans) or a shell "
+                              "around the points (thin walls) (default: from the cloud; the plan chosen is printed)")
     _allow_open_option(rebuild)
     rebuild.add_argument("--engine", choices=("local", "ray"), default="local",
                          help="where a large cloud's tiles are fitted (over 2 million points): a local process pool "

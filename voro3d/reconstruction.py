@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import MESH_AUTO_GRID, as_points, grid_option, mesh_grid, method_options, positive_int, trusted
+from .pointcloud.plan import as_plan
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
 from .pointcloud.tiles import ENGINES, analysis_subset
 from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
@@ -38,7 +39,7 @@ from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 __all__ = ["reconstruct", "VoroMeshStage"]
 
 def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                device: str | None = None, model=None, threads: int | None = None, denoise=None,
+                device: str | None = None, model=None, threads: int | None = None, plan=None,
                 allow_open: bool = False, clean: bool = True, engine: str = "local", workers: int | None = None,
                 progress: bool = False):
     """Watertight VoroMesh surface of a point cloud or mesh.
@@ -61,8 +62,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         (an adaptive band, :class:`voro3d.generators.AdaptiveBand`); an int is a uniform grid. A cloud's grid finer than
         :func:`voro3d.pointcloud.max_supported_grid` (voxels narrower than one spacing) works
         and warns: the surface between the points then comes from the smooth target alone.
-        Time and memory grow about as ``g^2`` (``150 g^2`` surface samples): 128 is practical,
-        256 slow. The learned model was trained at 32 and 64.
+        Time and memory grow about as ``g^2`` (``150 g^2`` surface samples for a mesh, ``75 g^2``
+        for a cloud): 128 is practical, 256 slow. The learned model was trained at 32 and 64.
     method : {"fit", "learned"}
         Direct optimisation (seconds) or the shipped ONNX network (fast, needs no torch).
     steps, seed, device : int, int, str, optional
@@ -73,10 +74,13 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         ``method="learned"``: an ONNX model of ``voro3d export-onnx``; default the shipped one.
     threads : int, optional
         Threads of the fit's CPU kernel or of onnxruntime; default every CPU the process may use.
-    denoise : bool or None
-        Point clouds: the smoothing pass that moves noisy points onto the smooth surface. None
-        (default) turns it on when the estimated fine-scale noise exceeds 0.13 point spacings,
-        and for sparse one-sided scans; True or False force it. Meshes: must stay None.
+    plan : voro3d.pointcloud.CloudPlan, dict or None
+        Point clouds: what to do with them (:class:`voro3d.pointcloud.CloudPlan`): ``normals``
+        (``"check"`` the given ones, ``"trust"`` them, or ``"estimate"``), ``denoise`` (the pass
+        that moves noisy points onto their smooth surface), ``filter`` (of a Poisson target) and
+        ``target`` (``"poisson"``, ``"imls"`` or ``"sheet"``); a dict may set some, e.g.
+        ``plan={"denoise": "off"}``. Fields left ``"auto"`` (all, by default) are decided from the
+        cloud; ``progress`` prints the plan chosen. Meshes: must stay None.
     allow_open : bool
         Meshes: accept one with boundary edges, its inside decided by generalized winding number
         (:class:`voro3d.queries.InsideOutside`). Point clouds need no such flag (open scans are
@@ -102,7 +106,9 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     -------
     open3d.geometry.TriangleMesh
         Closed, manifold, outward-oriented, in the input's coordinates. A cloud with colours
-        gives vertex colours (inverse-distance mean of the nearest points' colours).
+        gives vertex colours (inverse-distance mean of the nearest points' colours), on the mesh
+        split flat until it has about one vertex per point (:func:`voro3d.pointcloud.colored_mesh`:
+        the same surface, up to 64x the faces).
 
     Raises
     ------
@@ -110,7 +116,7 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         Empty or too small cloud (< 100 points), NaN/inf points, all points coplanar, more than
         1% of the given normals unusable, a cloud of outliers only (it fills a volume), normals
         not estimable, an unknown method, an option the method does not use (``steps``, ``seed``
-        or ``device`` with ``method="learned"``), ``denoise`` given for a mesh, or a
+        or ``device`` with ``method="learned"``), a ``plan`` given for a mesh or not a plan, or a
         non-watertight input mesh.
     """
     if method not in METHODS:
@@ -118,10 +124,11 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     options = method_options(method, "fit", steps=steps, seed=seed, device=device)
     options.update(method_options(method, "learned", model=model), threads=threads)
     grid = grid_option(grid)
+    cloud_plan = as_plan(plan)
     kind, data = _read(geometry)
     if kind == "mesh":
-        if denoise is not None:
-            raise ValueError("denoise applies to point clouds only; a mesh input takes denoise=None")
+        if plan is not None:
+            raise ValueError("plan applies to point clouds only; a mesh input takes plan=None")
     elif allow_open:
         raise ValueError("allow_open applies to meshes only; a point cloud may be open as it is")
     if engine not in ENGINES:
@@ -132,7 +139,7 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         if kind == "mesh":
             return _mesh_to_mesh(data, mesh_grid(grid), method, options,
                                  allow_open=allow_open, clean=clean, progress=progress)
-        return _cloud_to_mesh(*data, grid, method, options | tiling, denoise=denoise, clean=clean, progress=progress)
+        return _cloud_to_mesh(*data, grid, method, options | tiling, plan=cloud_plan, clean=clean, progress=progress)
 
 
 def _mesh_to_mesh(mesh, grid: int, method: str, options: dict, *, allow_open: bool, clean: bool, progress: bool):
@@ -148,12 +155,12 @@ def _mesh_to_mesh(mesh, grid: int, method: str, options: dict, *, allow_open: bo
     return shape.to_open3d(clean=clean, surface=mesh if clean else None)
 
 
-def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *, denoise, clean: bool,
+def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *, plan, clean: bool,
                    progress: bool):
     """A cloud's mesh, object by object (:func:`voro3d.pointcloud.separate_objects`), checked against its points."""
     import open3d as o3d
 
-    from .pointcloud import cloud_mesh, reconstruct_points, transfer_colors
+    from .pointcloud import cloud_mesh, colored_mesh, reconstruct_points
     from .pointcloud.reconstruct import report_phase
 
     mesh = o3d.geometry.TriangleMesh()
@@ -164,14 +171,13 @@ def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *,
         if len(groups) > 1:
             report_phase(progress, "object", f"{number + 1} of {len(groups)} far apart: {len(group):,} points")
         shape, target, info = reconstruct_points(points[group], None if normals is None else normals[group],
-                                                 grid=grid, method=method, denoise=denoise, progress=progress,
+                                                 grid=grid, method=method, plan=plan, progress=progress,
                                                  **options)
         piece = cloud_mesh(shape, target, clean=clean, progress=progress)
         subset = analysis_subset(len(group), 0)
         _check_fit(piece, points[group if subset is None else group[subset]], info.voxel)
         if colors is not None:
-            piece.vertex_colors = o3d.utility.Vector3dVector(
-                transfer_colors(np.asarray(piece.vertices), points[group], colors[group]))
+            piece = colored_mesh(piece, points[group], colors[group])
         mesh += piece
     return mesh
 
@@ -208,7 +214,7 @@ class VoroMeshStage:
     """
 
     def __init__(self, grid="auto", *, method: str = "fit", steps: int | None = None, seed: int | None = None,
-                 device: str | None = None, model=None, threads: int | None = None, denoise=None,
+                 device: str | None = None, model=None, threads: int | None = None, plan=None,
                  allow_open: bool = False, clean: bool = True, engine: str = "local", workers: int | None = None,
                  progress: bool = False):
         if method not in METHODS:
@@ -222,7 +228,7 @@ class VoroMeshStage:
         if workers is not None:
             options["workers"] = positive_int(workers, "workers")
         grid = grid_option(grid)
-        self.options = dict(grid=grid, method=method, denoise=None if denoise is None else bool(denoise),
+        self.options = dict(grid=grid, method=method, plan=None if plan is None else as_plan(plan),
                             allow_open=bool(allow_open), clean=bool(clean), engine=engine, progress=progress,
                             **options)
 

@@ -3,7 +3,12 @@
 io -> pointcloud.preprocess (outliers, spacing, noise) -> pointcloud.normals -> pointcloud.poisson
 (closed clouds; pointcloud.denoise filters it where the noise is heavy) or pointcloud.surface
 (IMLS + winding-number field for one-sided scans) -> pointcloud.reconstruct (samples, fit, the mesh
-fitted to the target) -> pointcloud.colors (a coloured cloud's colours on the mesh).
+fitted to the target) -> pointcloud.colors (a coloured cloud's colours on the mesh). The choices
+along the way are a :class:`CloudPlan` (``pointcloud.plan``): normals, denoise, filter and target,
+each ``"auto"`` (decided from the cloud by the rules there) or set by the caller
+(``voro3d.reconstruct(cloud, plan={"target": "imls"})``, ``voro3d reconstruct --target imls``);
+``PointCloudInfo.plan`` and the ``target`` phase line give the plan as it ran, and that plan passed
+back in gives the same mesh.
 
 The steps
 ---------
@@ -41,7 +46,7 @@ the points define (``voro3d/pointcloud/``):
    RIMLS residual weights, Öztireli et al. 2009) first smooths their normals (a pass over the
    normals alone, then one that moves the points onto their smooth surface; moving the points
    twice shrinks curved parts; the normals' pass is left out where the neighbours' normals mostly
-   cancel, the two sides of a wall thinner than the noise) (``denoise=None``; ``True``/``False`` force it).
+   cancel, the two sides of a wall thinner than the noise) (``plan.denoise``: ``"on"``/``"off"`` force it).
    - *Closed clouds* (``poisson.py``): Open3D's screened Poisson (Kazhdan & Hoppe 2013) of the
      oriented points, at an octree depth four times finer than the grid. One indicator function
      over the whole box averages noise over many points and caps holes smoothly; with our
@@ -71,9 +76,9 @@ the points define (``voro3d/pointcloud/``):
      distance points → surface + surface → points) is under 0.65 of the target's. The wall then
      comes out as a thin solid about two spacings thick (a cup lid at 20k points: CD 11 against
      746 before and 224 for Poisson). ``PointCloudInfo.target`` says which target was used.
-4. **Fit**: 150·g² samples of the target mesh (or, for a dense one-sided scan, the points
-   themselves with target samples only in the holes); the target labels the cells. Inside cells
-   in tiny groups apart from the rest are turned outside. The result is the usual checked,
+4. **Fit**: 75·g² samples (``CLOUD_SAMPLES_PER_FACE``; a mesh fit takes 150·g²) of the target
+   mesh (or, for a dense one-sided scan, the points themselves with target samples only in the
+   holes); the target labels the cells. Inside cells in tiny groups apart from the rest are turned outside. The result is the usual checked,
    watertight VoroMesh: Poisson's mesh is only the target, the guarantees come from the Voronoi
    extraction.
 5. **Mesh** (``pointcloud.cloud_mesh``): the surface is extracted, cleaned (:mod:`voro3d.cleaning`)
@@ -81,7 +86,9 @@ the points define (``voro3d/pointcloud/``):
    fit leaves facets tilted where its Voronoi faces could not settle, and the target is known.
    Not for a dense one-sided scan, whose VoroMesh was fitted to its own points.
 6. **Colours**: a cloud with colours gives vertex colours (inverse-distance mean of the 8
-   nearest points), like Open3D's Poisson; a cloud without gives none.
+   nearest points), like Open3D's Poisson, on the mesh split flat until it has about one vertex
+   per point (``colors.colored_mesh``: the same surface, up to 64x the faces; the VoroMesh's few
+   large faces would blur colours that vary faster than they do); a cloud without gives none.
 
 ``grid="auto"`` (the default) makes the finest voxels about 2.5 median spacings wide, between 32
 and 128, in an adaptive band that coarsens to 32^3 where the target is flat (``resolution.py``); an
@@ -121,13 +128,14 @@ points: 45 s and 2.1 GB, closed, one piece, no crossing triangles (``benchmarks/
 """
 from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement
 from .preprocess import cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, separate_objects
-from .colors import transfer_colors
+from .colors import colored_mesh, transfer_colors
+from .plan import CloudPlan
 from .reconstruct import PointCloudInfo, SnapTarget, cloud_mesh, reconstruct_points
 from .resolution import auto_grid, max_supported_grid
 from .poisson import PoissonSurface, poisson_surface
 from .surface import TargetSurface, imls, target_surface
 
 __all__ = ["estimate_normals", "orient_normals", "repair_normals", "sign_disagreement", "cloud_stats", "fill_ratio",
-           "local_dimension", "merge_duplicates", "outlier_mask", "separate_objects", "PointCloudInfo", "SnapTarget",
-           "auto_grid", "cloud_mesh", "max_supported_grid", "reconstruct_points", "transfer_colors", "TargetSurface", "imls",
+           "local_dimension", "merge_duplicates", "outlier_mask", "separate_objects", "CloudPlan", "PointCloudInfo", "SnapTarget",
+           "auto_grid", "cloud_mesh", "max_supported_grid", "reconstruct_points", "colored_mesh", "transfer_colors", "TargetSurface", "imls",
            "target_surface", "PoissonSurface", "poisson_surface"]

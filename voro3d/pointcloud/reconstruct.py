@@ -28,13 +28,13 @@ from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, f
                          outlier_mask, outlier_neighbours)
 from .poisson import poisson_depth, poisson_surface
 from .resolution import choose_grid, fit_band, target_samples
-from .surface import imls, sheet_surface, target_surface, winding_level
+from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_normals, sheet_if_closer, sheet_target
+from .surface import imls, target_surface, winding_level
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
-                     MAX_SIGN_DISAGREEMENT, NOISY, HEAVY_NOISE, FILTER_WIDTH_PER_NOISE,
+                     MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE,
                      DENSE_SPACINGS, MAX_TARGET_GRID, STRAY_CELL_SHARE, CLOSED_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE,
-                     FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN,
-                     SHEET_OFFSET)
+                     FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -59,6 +59,11 @@ class PointCloudInfo:
         Where the normals came from: ``"estimated"`` or ``"given"``, then ``", re-oriented"`` when
         the given signs disagreed between neighbours (``MAX_SIGN_DISAGREEMENT``) and ``", flipped"``
         when they pointed inward.
+    level : float
+        Winding level of the oriented points (:func:`~voro3d.pointcloud.surface.winding_level`,
+        clipped to 0-0.5): over ``CLOSED_LEVEL`` they enclose a volume.
+    plan : CloudPlan
+        The plan as it ran, every choice settled (:mod:`~voro3d.pointcloud.plan`).
     smoothed : bool
         Whether the noise-smoothing pass ran.
     filtered : bool
@@ -86,6 +91,8 @@ class PointCloudInfo:
     noise: float
     noisy: bool
     normals: str
+    level: float
+    plan: CloudPlan
     smoothed: bool
     filtered: bool
     target: str
@@ -128,16 +135,18 @@ def report_phase(progress: bool, phase: str, text: str, seconds: float | None = 
 
 def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit", steps: int | None = None,
                        seed: int | None = None, device: str | None = None, model=None, threads: int | None = None,
-                       denoise=None, engine: str = "local", workers: int | None = None, progress: bool = False):
+                       plan=None, engine: str = "local", workers: int | None = None, progress: bool = False):
     """VoroMesh of a point cloud, through a smooth target surface.
 
     1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), outliers
        out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
        measured; a cloud that fills a volume instead of sampling a surface is refused.
-    2. Normals: the given ones, checked (signs inconsistent between neighbours: re-oriented,
+    2. The plan (:class:`~voro3d.pointcloud.plan.CloudPlan`): its fields left ``"auto"`` are
+       settled from what steps 1-3 find, and the chosen plan is printed with ``progress``.
+       Normals: the given ones, checked (signs inconsistent between neighbours: re-oriented,
        :func:`~voro3d.pointcloud.normals.orient_normals`; all inward: flipped), else estimated
        and oriented (:func:`estimate_normals`).
-    3. On a noisy cloud, IMLS (its kernel spans several noise deviations) smooths the normals
+    3. On a noisy cloud (``plan.denoise``), IMLS (its kernel spans several noise deviations) smooths the normals
        (a second pass where they mostly agree, ``MIN_NORMAL_AGREEMENT``), then moves the points
        onto the smooth surface and replaces their normals with the field's.
     4. The target, without the pieces the points do not support: screened Poisson when the
@@ -145,7 +154,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        where the noise is over ``HEAVY_NOISE`` octree cells, :mod:`~voro3d.pointcloud.denoise`); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
        on a grid twice as fine as the VoroMesh grid, meshed by Marching Cubes.
-    5. The VoroLoss samples: ``150 grid^2`` of them from the target mesh, or, for a dense scan,
+    5. The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` (75) of them from the target mesh, or, for a dense scan,
        the points themselves (:func:`~voro3d.pointcloud.resolution.target_samples`); the target
        labels the cells.
 
@@ -174,10 +183,10 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     progress : bool
         As in :func:`voro3d.fit`, and one line on stderr per phase (clean, normals, target, fit)
         with what it chose and its time.
-    denoise : bool or None
-        The smoothing pass of step 3: None turns it on above ``NOISY`` spacings of estimated
-        fine-scale noise, and for sparse one-sided scans; True or False force it. The target's
-        filtering (step 4) needs it on.
+    plan : CloudPlan, dict or None
+        The choices of steps 2-4 (:class:`~voro3d.pointcloud.plan.CloudPlan`: ``normals``,
+        ``denoise``, ``filter``, ``target``), or a dict of some of them; None or ``"auto"`` fields
+        are decided from the cloud. ``info.plan`` is the plan as it ran.
     engine : {"local", "ray"}
         Where a tiled fit's tiles run: a local process pool, or Ray tasks
         (:func:`~voro3d.pointcloud.tiles.fit_tiles`); the same mesh either way.
@@ -196,7 +205,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     ------
     ValueError
         Too few points left after outlier removal, a cloud that fills a volume, normals that
-        cannot be estimated, an unknown method, or an option the method does not use.
+        cannot be estimated, an unknown method, an option the method does not use, or a plan
+        with an unknown field or choice (``plan={"normals": "check"}`` without normals too).
     """
     from .._validate import as_points, trusted
 
@@ -207,11 +217,11 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
             raise ValueError(f"normals must have the points' shape {points.shape}, got {normals.shape}")
     with trusted():
         return _reconstruct_points(points, normals, grid=grid, method=method, steps=steps, seed=seed, device=device,
-                                   model=model, threads=threads, denoise=denoise, engine=engine, workers=workers,
+                                   model=model, threads=threads, plan=as_plan(plan), engine=engine, workers=workers,
                                    progress=progress)
 
 
-def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, model, threads, denoise, engine, workers,
+def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, model, threads, plan, engine, workers,
                         progress):
     """:func:`reconstruct_points` on checked inputs."""
     from scipy.spatial import cKDTree
@@ -230,6 +240,9 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     if method == "fit":
         fit_options.setdefault("steps", CLOUD_STEPS)
 
+    normal_plan = settle_normals(plan, normals is not None)
+    if normal_plan == "estimate":
+        normals = None
     seconds = {}
     start = time.perf_counter()
     n_points = points.shape[0]
@@ -277,7 +290,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     start = time.perf_counter()
     if normals is None:
         normals, normal_source = estimate_normals(framed), "estimated"
-    elif sign_disagreement(framed, normals, tree=tree) > MAX_SIGN_DISAGREEMENT:
+    elif normal_plan == "check" and sign_disagreement(framed, normals, tree=tree) > MAX_SIGN_DISAGREEMENT:
         # Normals whose signs were never made consistent (a bare estimate_normals(), say):
         # their axes are kept, their signs set as for our own.
         normals, normal_source = orient_normals(framed, normals), "given, re-oriented"
@@ -300,46 +313,36 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     areas = point_areas(framed, tree=tree, distances=None if neighbours is None else neighbours[0])
     level = winding_level(framed, normals, areas, float(np.median(widths)))
     neighbours = None  # 21 neighbours a point: not kept through the fit
-    if level < -CLOSED_LEVEL:
+    if level < -CLOSED_LEVEL and normal_plan != "trust":
         # Consistent normals of a closed surface that all point inward (the global sign of a
         # tangent-plane orientation is arbitrary): the winding number reads -1 inside.
         normals, level = -normals, -level
         normal_source += ", flipped"
     level = min(max(level, 0.0), 0.5)
     closed = level > CLOSED_LEVEL
-    # The smoothing pass: noisy points onto their smooth surface. One-sided scans also get it
-    # when sparse (normals that agree across a sharp edge); dense clean clouds keep their points
-    # exact (and thin walls their two sides), and Poisson follows clean sparse ones closer
-    # unsmoothed (bunny at 5k points: CD 1.13 against 1.77).
-    smoothed = (noisy or not (closed or dense)) if denoise is None else bool(denoise)
+    denoise = settle_denoise(plan, noisy=noisy, closed=closed, dense=dense)
     given = framed
-    if smoothed:
+    if denoise == "on":
         value, gradient, agreement = imls(framed, normals, widths, framed, tree=tree)
         if noisy and np.median(agreement) > MIN_NORMAL_AGREEMENT:
             value, gradient, _ = imls(framed, gradient, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
     depth = poisson_depth(target_grid)
-    filtered = smoothed and noisy and stats.noise > HEAVY_NOISE * 2.0 / 2**depth  # denoise=False: neither
-    target = poisson_surface(framed, normals, depth,
-                             filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None) if closed else None
-    if target is not None and target.escape(framed) > MAX_POISSON_ESCAPE:
-        # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
-        target = None
-    kind = "poisson" if target is not None else "imls"
     resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
-    if target is None:
-        target = target_surface(framed, normals, widths, resolution, dense=dense and not smoothed, level=level)
-    if not target.dense:
-        sheet = _sheet_if_closer(target, given, stats.median_spacing, resolution)
-        if sheet is not None:
-            target, kind, framed = sheet, "sheet", given
+    filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
+    kind, target = _target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
+                           depth=depth, resolution=resolution, filtered=filtered == "on", dense=dense and denoise == "off")
+    if kind == "sheet":
+        framed = given
+    if kind != "poisson":
+        filtered = "off"
     _check_coverage(target, framed, widths)
     surface_vertices = target.project(target.vertices)
+    plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind)
     seconds["surface"] = time.perf_counter() - start
     report_phase(progress, "target", f"{kind}{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
-                 f"{'closed' if closed else 'open'} (winding level {level:.2f}), smoothing {'on' if smoothed else 'off'}, "
-                 f"filter {'on' if filtered and kind == 'poisson' else 'off'}", seconds["surface"])
+                 f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}", seconds["surface"])
 
     start = time.perf_counter()
     n_tiles = 0
@@ -368,7 +371,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                  f"{n_samples if method == 'fit' else 0:,} samples{f', {n_tiles} tiles' if n_tiles else ''}", seconds["fit"])
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
-                          noisy=bool(noisy), normals=normal_source, smoothed=smoothed, filtered=bool(filtered and kind == "poisson"),
+                          noisy=bool(noisy), normals=normal_source, level=level, plan=plan, smoothed=denoise == "on",
+                          filtered=filtered == "on",
                           target=kind, grid=grid, levels=levels, voxel=grid_voxel(grid) / frame.scale, tiles=n_tiles,
                           seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
@@ -406,37 +410,28 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
     return mesh
 
 
-def _sheet_if_closer(target, points, spacing: float, resolution: int):
-    """The offset shell of the points when it fits them much better than ``target``, else None.
-
-    Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
-    ``SHEET_SURFACE_GATE``); kept when its :func:`_misfit` is under ``SHEET_WIN`` times the target's.
-    """
-    from scipy.spatial import cKDTree
-
-    to_target = float(np.mean(target.distance(points)))
-    if to_target <= SHEET_POINTS_GATE * spacing:
-        return None
-    tree = cKDTree(points)
-    strays = _surface_to_points(target, tree)
-    if strays <= SHEET_SURFACE_GATE * spacing:
-        return None
-    offset = max(grid_voxel(resolution), SHEET_OFFSET * spacing)
-    sheet = sheet_surface(points, offset, resolution)
-    return sheet if _misfit(sheet, points, tree) < SHEET_WIN * (to_target + strays) else None
-
-
-def _surface_to_points(target, tree, n_samples: int = 20_000) -> float:
-    """Mean distance from the target surface (area-uniform samples) to the nearest point."""
-    from ..sampling import sample_surface
-
-    samples, _ = sample_surface((target.vertices, target.triangles), n_samples, seed=0)
-    return float(np.mean(tree.query(samples, workers=-1)[0]))
-
-
-def _misfit(target, points, tree) -> float:
-    """Mean distance from the points to the target plus from the target to the points."""
-    return float(np.mean(target.distance(points))) + _surface_to_points(target, tree)
+def _target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
+            resolution: int, filtered: bool, dense: bool):
+    """``(kind, target)``: the target surface of ``plan.target`` (``choice``), the ``"auto"`` rule of
+    :class:`~voro3d.pointcloud.plan.CloudPlan` when it is ``"auto"``. ``points`` are the points the
+    field is built from (smoothed or not), ``given`` the points as they came, for the shell."""
+    if choice == "sheet":
+        return "sheet", sheet_target(given, stats.median_spacing, resolution)
+    target = None
+    if choice == "poisson" or (choice == "auto" and closed):
+        target = poisson_surface(points, normals, depth,
+                                 filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None)
+        if choice == "auto" and target.escape(points) > MAX_POISSON_ESCAPE:
+            # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
+            target = None
+    kind = "poisson" if target is not None else "imls"
+    if target is None:
+        target = target_surface(points, normals, widths, resolution, dense=dense, level=level)
+    if choice == "auto" and not target.dense:
+        sheet = sheet_if_closer(target, given, stats.median_spacing, resolution)
+        if sheet is not None:
+            return "sheet", sheet
+    return kind, target
 
 
 def _drop_stray_cells(shape):

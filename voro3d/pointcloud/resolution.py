@@ -14,8 +14,8 @@ import numpy as np
 
 from ..generators import AdaptiveBand
 from ..geometry import face_area_vectors, grid_voxel
-from .tuning import (AUTO_GRID_RANGE, AUTO_SPACINGS_PER_VOXEL, BAND_TOLERANCE, COARSEST_GRID, HOLE_VOXELS, MAX_TARGET_GRID,
-                     MIN_SPACINGS_PER_VOXEL)
+from .tuning import (AUTO_GRID_RANGE, AUTO_SPACINGS_PER_VOXEL, BAND_TOLERANCE, CLOUD_SAMPLES_PER_FACE, COARSEST_GRID,
+                     HOLE_VOXELS, MAX_TARGET_GRID, MIN_SPACINGS_PER_VOXEL)
 
 __all__ = ["auto_grid", "band_levels", "choose_grid", "fit_band", "max_supported_grid", "target_samples"]
 
@@ -67,7 +67,8 @@ def fit_band(surface_vertices: np.ndarray, grid: int, levels: int) -> AdaptiveBa
 
 def target_samples(target, surface_vertices, points, grid: int, *, band: AdaptiveBand | None = None,
                    seed: int) -> np.ndarray:
-    """The VoroLoss samples: ``150 grid^2`` of them as a mesh fit gets, fewer where ``band`` is coarse.
+    """The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` of them (half a mesh fit's: the mesh is
+    fitted to the target afterwards), fewer where ``band`` is coarse.
 
     Dense clean points (``target.dense``: spacing under a third of a voxel) are exact samples
     already, and the proxy mesh is only as good as its grid (a wall thinner than a grid step is
@@ -82,10 +83,9 @@ def target_samples(target, surface_vertices, points, grid: int, *, band: Adaptiv
     """
     from scipy.spatial import cKDTree
 
-    from ..fitting import SAMPLES_PER_FACE
     from ..sampling import sample_surface
 
-    budget = SAMPLES_PER_FACE * grid**2
+    budget = CLOUD_SAMPLES_PER_FACE * grid**2
     rng = np.random.default_rng(seed)
     if band is None:
         proxy, _ = sample_surface((surface_vertices, target.triangles), budget, seed=seed)

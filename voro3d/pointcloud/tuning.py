@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE",
            "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS"]
 
@@ -31,7 +31,7 @@ MIN_NORMAL_AGREEMENT = 0.6
 # estimate_normals() on the noisy clouds, as a user runs it, 0.156-0.364; our own orientation of those
 # clouds 0-0.076.
 MAX_SIGN_DISAGREEMENT = 0.1
-# Fine-scale noise above this share of the spacing turns on the smoothing pass (denoise=None):
+# Fine-scale noise above this share of the spacing turns on the smoothing pass (plan denoise "auto"):
 # clean dev clouds read under 0.075, 0.25% noise and more at least 0.19.
 NOISY = 0.13
 # Noise over this many cells of the Poisson octree (2 / 2^depth in the fit frame; four dev shapes,
@@ -108,6 +108,13 @@ MAX_MEDIAN_DISTANCE = 1.0
 # worst -0.0007, F1 within 0.001; the fit 0.67x and the whole call 0.84x the time. Bunny and fandisk
 # at 100k clean points and 3-view range scans: CD -0.9% to +0.8%, NC at worst -0.0018.
 CLOUD_STEPS = 200
+# VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh
+# is fitted to the target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view
+# range scans at grid 64, 75 against 150 (benchmarks/results/cloud_samples.md): CD +0.1% to +0.4%
+# on average per condition (-2.3% on the scans), +2.2% at worst, NC at worst -0.0008 on average, F1
+# within 0.0005; samples and fit 0.56-0.64x, the call 0.83-0.87x the time. At 40: CD +0.5%, +3.2% at
+# worst, NC -0.0019 on clean 100k, for 0.4x the fit.
+CLOUD_SAMPLES_PER_FACE = 75
 # Statistics of large clouds are medians or means over a random subset of this many points
 # (:func:`~voro3d.queries.knn_blocks`): the noise and fine noise (cloud_stats) and the local dimension
 # over STATISTICS_SAMPLE, the sign disagreement of given normals over SIGN_SAMPLE (16 pairs a point).

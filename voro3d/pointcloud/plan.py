@@ -1,0 +1,144 @@
+"""The plan of a cloud's reconstruction: which normals, smoothing, filter and target surface.
+
+:func:`~voro3d.pointcloud.reconstruct.reconstruct_points` analyses the cloud (outliers, spacing,
+noise, the winding level of its oriented points), then settles each choice of a
+:class:`CloudPlan` left ``"auto"`` by the rules below, then runs. ``PointCloudInfo.plan`` is the
+plan as it ran, every field settled: passed back in, it gives the same mesh; any field can be set
+by hand (``reconstruct(cloud, plan={"target": "imls"})``). The numbers the rules read are in
+:mod:`~voro3d.pointcloud.tuning`, each with its measurement.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..geometry import grid_voxel
+from .tuning import HEAVY_NOISE, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN
+
+__all__ = ["CloudPlan", "as_plan", "NORMALS", "SWITCHES", "TARGETS"]
+
+NORMALS = ("auto", "check", "trust", "estimate")
+SWITCHES = ("auto", "on", "off")
+TARGETS = ("auto", "poisson", "imls", "sheet")
+
+
+@dataclass(frozen=True)
+class CloudPlan:
+    """What :func:`~voro3d.pointcloud.reconstruct_points` does with a cloud; ``"auto"`` lets the analysis decide.
+
+    Attributes
+    ----------
+    normals : {"auto", "check", "trust", "estimate"}
+        ``"check"``: the given normals, re-oriented where their signs disagree between neighbours
+        (``MAX_SIGN_DISAGREEMENT``) and flipped where they all point inward; ``"trust"``: the
+        given normals as they are; ``"estimate"``: estimated and oriented by us, any given ones
+        ignored. ``"auto"``: ``"check"`` when normals are given, else ``"estimate"``.
+    denoise : {"auto", "on", "off"}
+        The smoothing pass that moves the points onto their IMLS surface. ``"auto"``: on when the
+        fine-scale noise is over ``NOISY`` spacings, and for one-sided scans that are not dense
+        (sparse points whose normals need to agree across sharp edges).
+    filter : {"auto", "on", "off"}
+        The bilateral filter of a Poisson target (:mod:`~voro3d.pointcloud.denoise`). ``"auto"``:
+        on for smoothed noisy points whose noise is over ``HEAVY_NOISE`` octree cells.
+    target : {"auto", "poisson", "imls", "sheet"}
+        The smooth surface the VoroMesh is fitted to and labelled by: screened Poisson, the IMLS
+        field with the points' winding number behind it, or a shell at a small offset around the
+        points (walls thinner than the spacing). ``"auto"``: Poisson when the oriented points
+        enclose a volume (winding level over ``CLOSED_LEVEL``) and it does not flap out past them
+        (``MAX_POISSON_ESCAPE``), else IMLS; then the shell where it fits the points much better
+        (``SHEET_*``).
+    """
+
+    normals: str = "auto"
+    denoise: str = "auto"
+    filter: str = "auto"
+    target: str = "auto"
+
+    def __post_init__(self):
+        for name, choices in (("normals", NORMALS), ("denoise", SWITCHES), ("filter", SWITCHES),
+                              ("target", TARGETS)):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"plan {name} must be one of {choices}, got {getattr(self, name)!r}")
+
+    def __str__(self) -> str:
+        return ", ".join(f"{item.name} {getattr(self, item.name)}" for item in fields(self))
+
+
+def as_plan(plan) -> CloudPlan:
+    """``plan`` as a :class:`CloudPlan`: None (all ``"auto"``), a plan, or a mapping of its fields."""
+    if plan is None:
+        return CloudPlan()
+    if isinstance(plan, CloudPlan):
+        return plan
+    if isinstance(plan, dict):
+        unknown = sorted(set(plan) - {item.name for item in fields(CloudPlan)})
+        if unknown:
+            raise ValueError(f"plan has no field {unknown[0]!r}; its fields are "
+                             f"{tuple(item.name for item in fields(CloudPlan))}")
+        return CloudPlan(**plan)
+    raise TypeError(f"plan must be a CloudPlan, a dict of its fields or None, got {type(plan).__name__}")
+
+
+def settle_normals(plan: CloudPlan, given: bool) -> str:
+    """The normals choice for a cloud with (``given``) or without normals."""
+    if plan.normals == "auto":
+        return "check" if given else "estimate"
+    if plan.normals in ("check", "trust") and not given:
+        raise ValueError(f"plan normals {plan.normals!r} needs normals with the points; none were given")
+    return plan.normals
+
+
+def settle_denoise(plan: CloudPlan, *, noisy: bool, closed: bool, dense: bool) -> str:
+    """Noisy points onto their smooth surface; sparse one-sided scans too (normals that agree across
+    a sharp edge). Dense clean clouds keep their points exact (and thin walls their two sides), and
+    Poisson follows clean sparse ones closer unsmoothed (bunny at 5k points: CD 1.13 against 1.77)."""
+    if plan.denoise != "auto":
+        return plan.denoise
+    return "on" if noisy or not (closed or dense) else "off"
+
+
+def settle_filter(plan: CloudPlan, *, smoothed: bool, noisy: bool, noise: float, depth: int) -> str:
+    """The Poisson target's bilateral filter: for smoothed points whose noise the octree still resolves."""
+    if plan.filter != "auto":
+        return plan.filter
+    return "on" if smoothed and noisy and noise > HEAVY_NOISE * 2.0 / 2**depth else "off"
+
+
+def sheet_if_closer(target, points, spacing: float, resolution: int):
+    """The offset shell of the points when it fits them much better than ``target``, else None.
+
+    Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
+    ``SHEET_SURFACE_GATE``); kept when its :func:`_misfit` is under ``SHEET_WIN`` times the target's.
+    """
+    from scipy.spatial import cKDTree
+
+    to_target = float(np.mean(target.distance(points)))
+    if to_target <= SHEET_POINTS_GATE * spacing:
+        return None
+    tree = cKDTree(points)
+    strays = _surface_to_points(target, tree)
+    if strays <= SHEET_SURFACE_GATE * spacing:
+        return None
+    sheet = sheet_target(points, spacing, resolution)
+    return sheet if _misfit(sheet, points, tree) < SHEET_WIN * (to_target + strays) else None
+
+
+def sheet_target(points, spacing: float, resolution: int):
+    """The shell ``SHEET_OFFSET`` spacings (at least a field voxel) around the points."""
+    from .surface import sheet_surface
+
+    return sheet_surface(points, max(grid_voxel(resolution), SHEET_OFFSET * spacing), resolution)
+
+
+def _surface_to_points(target, tree, n_samples: int = 20_000) -> float:
+    """Mean distance from the target surface (area-uniform samples) to the nearest point."""
+    from ..sampling import sample_surface
+
+    samples, _ = sample_surface((target.vertices, target.triangles), n_samples, seed=0)
+    return float(np.mean(tree.query(samples, workers=-1)[0]))
+
+
+def _misfit(target, points, tree) -> float:
+    """Mean distance from the points to the target plus from the target to the points."""
+    return float(np.mean(target.distance(points))) + _surface_to_points(target, tree)
