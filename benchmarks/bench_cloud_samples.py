@@ -11,7 +11,6 @@ mesh, the fit's seconds and the whole call's. Writes ``benchmarks/results/cloud_
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -19,6 +18,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_pointcloud import dev_parser, dev_shapes
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "data" / "dev"
@@ -75,16 +75,12 @@ def _table(rows: list, grid: int) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = dev_parser(__doc__, SHAPES, OUT)
     parser.add_argument("--per-face", nargs="+", type=int, default=[150, 75, 40])
-    parser.add_argument("--shapes", nargs="+", default=list(SHAPES))
     parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
     parser.add_argument("--grid", type=int, default=64)
-    parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
-    shapes = [name for name in args.shapes if (DEV / name).exists()]
-    if not shapes:
-        raise SystemExit(f"none of {args.shapes} in {DEV}")
+    shapes = dev_shapes(args.shapes, DEV)
     sys.path.insert(0, str(ROOT))
     rows = [row for name in shapes for condition in args.conditions
             for row in run_cloud(name, condition, args.grid, args.per_face)]

@@ -20,7 +20,6 @@ one shape run back to back. Writes ``benchmarks/results/colours.md`` and ``colou
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -28,7 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_pointcloud import poisson, position_colours
+from bench_pointcloud import dev_parser, dev_shapes, poisson, position_colours
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "data" / "dev"
@@ -113,14 +112,10 @@ def run_shape(name: str, n_points: int) -> list:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--shapes", nargs="+", default=list(SHAPES))
+    parser = dev_parser(__doc__, SHAPES, OUT)
     parser.add_argument("--points", type=int, default=20_000)
-    parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
-    shapes = [name for name in args.shapes if (DEV / name).exists()]
-    if not shapes:
-        raise SystemExit(f"none of {args.shapes} in {DEV}")
+    shapes = dev_shapes(args.shapes, DEV)
     sys.path.insert(0, str(ROOT))
     rows = [row for name in shapes for row in run_shape(name, args.points)]
     args.out.mkdir(parents=True, exist_ok=True)

@@ -20,7 +20,6 @@ result is the auto one). CD x1e5, NC, F1 against the mesh; a run refused by
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -28,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_pointcloud import dev_parser, dev_shapes
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "data" / "dev"
@@ -123,16 +123,12 @@ def _cd(run: dict) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--shapes", nargs="+", default=list(SHAPES))
+    parser = dev_parser(__doc__, SHAPES, OUT)
     parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
     parser.add_argument("--grid", default="64", help="an integer, or auto")
-    parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
     grid = args.grid if args.grid == "auto" else int(args.grid)
-    shapes = [name for name in args.shapes if (DEV / name).exists()]
-    if not shapes:
-        raise SystemExit(f"none of {args.shapes} in {DEV}")
+    shapes = dev_shapes(args.shapes, DEV)
     sys.path.insert(0, str(ROOT))
     rows = [run_cloud(name, condition, grid) for name in shapes for condition in args.conditions]
     args.out.mkdir(parents=True, exist_ok=True)

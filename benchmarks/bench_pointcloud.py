@@ -139,6 +139,22 @@ def range_scan(vertices, triangles, views: int, n: int, rng) -> np.ndarray:
     return points[rng.permutation(len(points))[:n]]
 
 
+def dev_parser(doc: str, shapes, out: Path):
+    """An argument parser with ``--shapes`` (default ``shapes``) and ``--out`` (default ``out``), described by ``doc``'s first line."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--shapes", nargs="+", default=list(shapes))
+    parser.add_argument("--out", type=Path, default=out)
+    return parser
+
+
+def dev_shapes(names, folder: Path = SHARED / "dev") -> list:
+    """The dev meshes of ``names`` that ``folder`` holds; none of them is an error (the data is not bundled)."""
+    found = [name for name in names if (folder / name).exists()]
+    if not found:
+        raise SystemExit(f"none of {list(names)} in {folder}")
+    return found
+
+
 def position_colours(points, low, high):
     """RGB in [0, 1] from the position in the box ``low``-``high``: a smooth colouring to carry over."""
     return np.clip((points - low) / (high - low), 0.0, 1.0)

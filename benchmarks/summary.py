@@ -123,6 +123,24 @@ million of them with its fit in tiles, run by the local process pool and by Ray 
 against Open3D's Poisson at depths 9 and 10 on the same points; peak memory of the whole process
 tree. Both engines give the same mesh, closed, one piece, no crossing triangles (exact check), in
 under a minute and about 2-2.7 GB; Poisson depth 9's CD is 0.2% lower with 48x the faces.""",
+    "plan": """\
+`benchmarks/bench_plan.py`: each rule of a cloud's plan (`voro3d/pointcloud/plan.py`) turned the other
+way on the clouds where it applies, 8 dev meshes x 5 conditions, no normals. The smoothing pass pays
+on noisy clouds (CD 5.9 against 19.0) and is a wash elsewhere; refusing a Poisson surface that flaps
+out past the points pays on every 3-view scan where it fires (CD 68 against 842); the shell fired on
+one cloud (a cup lid, CD 38 against 1,385); Poisson for closed clouds pays on clean and noisy ones,
+while on 1- and 3-view scans Poisson in place of IMLS gives a lower mean CD (CAD parts much lower,
+organic ones much higher) and lower NC and F1: no global choice is right there.""",
+    "colours": """\
+`benchmarks/bench_colours.py`: a cloud's colours on its mesh, by position (smooth) and by |normal|
+(fast), voro3d with its mesh split flat to about one vertex per point, without the split, and
+Open3D's Poisson, on 6 dev meshes; the error at ground-truth points, interpolated over the surface
+as a renderer shows it. The split brings the fast colouring's error from 0.062 to 0.053 (Poisson
+0.062); one CAD mesh stays above Poisson's.""",
+    "cloud_samples": """\
+`benchmarks/bench_cloud_samples.py`: the VoroLoss samples of a cloud's fit per grid face, 150 (a
+mesh fit's), 75 and 40, on 6 dev meshes x 4 conditions at grid 64: 75 costs CD 0.1-0.4% for
+0.56-0.64x the fit, the default since.""",
     "pointcloud_dense38": """\
 Dense clean 100k-point clouds of all 38 dev meshes, VoroMesh only.""",
     "pointcloud_range": """\
