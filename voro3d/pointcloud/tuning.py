@@ -111,9 +111,9 @@ CLOUD_STEPS = 200
 # VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh
 # is fitted to the target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view
 # range scans at grid 64, 75 against 150 (benchmarks/results/cloud_samples.md): CD +0.1% to +0.4%
-# on average per condition (-2.3% on the scans), +2.2% at worst, NC at worst -0.0008 on average, F1
-# within 0.0005; samples and fit 0.56-0.64x, the call 0.83-0.87x the time. At 40: CD +0.5%, +3.2% at
-# worst, NC -0.0019 on clean 100k, for 0.4x the fit.
+# on average per condition (-2.3% on the scans), +4.2% at worst (a 3-view scan; +2.2% on the rest),
+# NC at worst -0.0008 on average, F1 within 0.0005; samples and fit 0.56-0.64x, the call 0.83-0.87x
+# the time. At 40: CD +0.5%, +3.2% at worst, NC -0.0019 on clean 100k, for 0.4x the fit.
 CLOUD_SAMPLES_PER_FACE = 75
 # Statistics of large clouds are medians or means over a random subset of this many points
 # (:func:`~voro3d.queries.knn_blocks`): the noise and fine noise (cloud_stats) and the local dimension
