@@ -63,13 +63,9 @@ class PointCloudInfo:
         Winding level of the oriented points (:func:`~voro3d.pointcloud.surface.winding_level`,
         clipped to 0-0.5): over ``CLOSED_LEVEL`` they enclose a volume.
     plan : CloudPlan
-        The plan as it ran, every choice settled (:mod:`~voro3d.pointcloud.plan`).
-    smoothed : bool
-        Whether the noise-smoothing pass ran.
-    filtered : bool
-        Whether the Poisson target was bilateral-filtered (noise over ``HEAVY_NOISE`` octree cells).
-    target : str
-        The target surface: ``"poisson"``, ``"imls"`` or ``"sheet"`` (module docstring).
+        The plan as it ran, every choice settled (:mod:`~voro3d.pointcloud.plan`); read from it:
+        ``smoothed`` (bool: the noise-smoothing pass ran), ``filtered`` (bool: the Poisson target
+        was bilateral-filtered) and ``target`` (``"poisson"``, ``"imls"`` or ``"sheet"``).
     grid : int
         VoroMesh grid used: its finest level when ``levels > 0``.
     levels : int
@@ -93,14 +89,23 @@ class PointCloudInfo:
     normals: str
     level: float
     plan: CloudPlan
-    smoothed: bool
-    filtered: bool
-    target: str
     grid: int
     levels: int
     voxel: float
     tiles: int
     seconds: dict
+
+    @property
+    def smoothed(self) -> bool:
+        return self.plan.denoise == "on"
+
+    @property
+    def filtered(self) -> bool:
+        return self.plan.filter == "on"
+
+    @property
+    def target(self) -> str:
+        return self.plan.target
 
 
 @dataclass(frozen=True)
@@ -146,16 +151,16 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        Normals: the given ones, checked (signs inconsistent between neighbours: re-oriented,
        :func:`~voro3d.pointcloud.normals.orient_normals`; all inward: flipped), else estimated
        and oriented (:func:`estimate_normals`).
-    3. On a noisy cloud (``plan.denoise``), IMLS (its kernel spans several noise deviations) smooths the normals
-       (a second pass where they mostly agree, ``MIN_NORMAL_AGREEMENT``), then moves the points
-       onto the smooth surface and replaces their normals with the field's.
+    3. On a noisy cloud (``plan.denoise``), IMLS (its kernel spans several noise deviations)
+       smooths the normals (a second pass where they mostly agree, ``MIN_NORMAL_AGREEMENT``), then
+       moves the points onto the smooth surface and replaces their normals with the field's.
     4. The target, without the pieces the points do not support: screened Poisson when the
        points enclose a volume (their winding level is over ``CLOSED_LEVEL``; bilateral-filtered
        where the noise is over ``HEAVY_NOISE`` octree cells, :mod:`~voro3d.pointcloud.denoise`); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
        on a grid twice as fine as the VoroMesh grid, meshed by Marching Cubes.
-    5. The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` (75) of them from the target mesh, or, for a dense scan,
-       the points themselves (:func:`~voro3d.pointcloud.resolution.target_samples`); the target
+    5. The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` (75) of them from the target mesh,
+       or, for a dense scan, the points themselves (:func:`~voro3d.pointcloud.resolution.target_samples`); the target
        labels the cells.
 
     A cloud of more than ``TILE_POINTS`` points is reconstructed from a uniform subset of
@@ -371,10 +376,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                  f"{n_samples if method == 'fit' else 0:,} samples{f', {n_tiles} tiles' if n_tiles else ''}", seconds["fit"])
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
-                          noisy=bool(noisy), normals=normal_source, level=level, plan=plan, smoothed=denoise == "on",
-                          filtered=filtered == "on",
-                          target=kind, grid=grid, levels=levels, voxel=grid_voxel(grid) / frame.scale, tiles=n_tiles,
-                          seconds=seconds)
+                          noisy=bool(noisy), normals=normal_source, level=level, plan=plan, grid=grid, levels=levels,
+                          voxel=grid_voxel(grid) / frame.scale, tiles=n_tiles, seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
                             smoothing=NOISY_SMOOTHING if noisy else 0.0)
     return shape, surface, info
