@@ -230,6 +230,38 @@ def best_poisson(points, source, colours=None):
     return depth, mesh, scores, seconds, orientation
 
 
+def alpha_wrap_binary() -> Path:
+    """``out/alpha_wrap``, compiled from ``benchmarks/alpha_wrap.cpp`` with the system's CGAL when missing or older."""
+    import subprocess
+
+    source, binary = Path(__file__).with_name("alpha_wrap.cpp"), ROOT / "out" / "alpha_wrap"
+    if not binary.exists() or binary.stat().st_mtime < source.stat().st_mtime:
+        binary.parent.mkdir(parents=True, exist_ok=True)
+        subprocess.run(["g++", "-O2", "-std=c++17", "-DNDEBUG", str(source), "-o", str(binary), "-lgmp", "-lmpfr"],
+                       check=True)
+    return binary
+
+
+def alpha_wrap(points):
+    """CGAL's ``alpha_wrap_3`` of the points, alpha = diagonal / 60, offset = diagonal / 600 (closed,
+    intersection-free, as ours); returns (mesh, seconds)."""
+    import subprocess
+    import tempfile
+
+    import open3d as o3d
+
+    diagonal, binary = float(np.linalg.norm(np.ptp(points, axis=0))), alpha_wrap_binary()
+    with tempfile.TemporaryDirectory() as folder:
+        cloud, wrap = Path(folder) / "points.xyz", Path(folder) / "wrap.off"
+        np.savetxt(cloud, points, fmt="%.9g")
+        start = time.perf_counter()
+        subprocess.run([str(binary), str(cloud), str(wrap), repr(diagonal / 60), repr(diagonal / 600)],
+                       check=True)
+        seconds = time.perf_counter() - start
+        mesh = o3d.io.read_triangle_mesh(str(wrap))
+    return mesh, seconds
+
+
 def _pieces(mesh) -> int:
     return int(len(np.unique(np.asarray(mesh.cluster_connected_triangles()[0]))))
 
@@ -246,7 +278,7 @@ def _colour_error(mesh, source, low, high):
     return float(np.abs(np.asarray(mesh.vertex_colors)[nearest] - position_colours(truth, low, high)).mean())
 
 
-def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=True):
+def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=True, with_alpha_wrap=False):
     import open3d as o3d
 
     from voro3d.io import mesh_arrays, save_mesh
@@ -287,6 +319,9 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
         if colours is not None:
             row["poisson"]["colour_error"] = _colour_error(mesh, source, low, high)
         meshes["poisson"] = mesh
+    if with_alpha_wrap:
+        mesh, seconds = alpha_wrap(points)
+        row["alpha_wrap"] = dict(evaluate(mesh, source), seconds=seconds, pieces=_pieces(mesh))
     if name in PICTURED and (condition in PICTURED_CONDITIONS or condition == COLOURED):
         for method, mesh in meshes.items():
             save_mesh(mesh, picture_dir / f"{Path(name).stem}_{condition.replace(' ', '_')}_{method}.ply")
@@ -298,8 +333,10 @@ def run_scans(folder: Path, grid, picture_dir):
     bounding-box diagonals) and mean |n_scan . n_mesh| where the scan has normals."""
     import open3d as o3d
 
+    from voro3d.frames import fit_frame
     from voro3d.io import save_mesh
     from voro3d.pointcloud import cloud_mesh, reconstruct_points
+    from voro3d.pointcloud.preprocess import outlier_mask
     from voro3d.watertight import check_watertight
 
     rows = []
@@ -311,6 +348,10 @@ def run_scans(folder: Path, grid, picture_dir):
         usable = None if normals is None else np.linalg.norm(normals, axis=1) > 1e-9
         row = dict(scan=path.name, points=len(points), normals=normals is not None)
         diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
+        # Both methods are also scored at the points our outlier test keeps (a scan's far specks
+        # weigh heavily in a mean distance: Poisson wraps them in blobs, we drop them).
+        kept = ~outlier_mask(fit_frame(points).apply(points))
+        row["kept_points"] = int(kept.sum())
         start = time.perf_counter()
         try:
             from voro3d.reconstruction import _oriented
@@ -319,14 +360,14 @@ def run_scans(folder: Path, grid, picture_dir):
             shape, target, info = reconstruct_points(checked_points, checked_normals, grid=grid)
             mesh = cloud_mesh(shape, target)
             report = check_watertight(mesh)
-            row["voromesh"] = dict(_scan_scores(mesh, points, normals, usable, diagonal),
+            row["voromesh"] = dict(_scan_scores(mesh, points, normals, usable, diagonal, kept),
                                    seconds=time.perf_counter() - start, grid=info.grid, pieces=_pieces(mesh),
                                    watertight=bool(report.watertight), outliers=info.n_outliers)
             save_mesh(mesh, picture_dir / f"scan_{path.stem}_voromesh.ply")
         except ValueError as error:
             row["voromesh"] = dict(error=str(error))
         tried, _ = poisson(points)
-        scored = {d: _scan_scores(m, points, normals, usable, diagonal) for d, (m, _) in tried.items()}
+        scored = {d: _scan_scores(m, points, normals, usable, diagonal, kept) for d, (m, _) in tried.items()}
         depth = min(scored, key=lambda d: scored[d]["distance"])
         row["poisson"] = dict(scored[depth], depth=depth, seconds=tried[depth][1], pieces=_pieces(tried[depth][0]))
         save_mesh(tried[depth][0], picture_dir / f"scan_{path.stem}_poisson.ply")
@@ -335,14 +376,14 @@ def run_scans(folder: Path, grid, picture_dir):
     return rows
 
 
-def _scan_scores(mesh, points, normals, usable, diagonal):
+def _scan_scores(mesh, points, normals, usable, diagonal, kept):
     import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
     found = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
     distance = np.linalg.norm(found["points"].numpy() - points, axis=1)
-    scores = dict(distance=float(distance.mean() / diagonal))
+    scores = dict(distance=float(distance.mean() / diagonal), kept_distance=float(distance[kept].mean() / diagonal))
     if normals is not None:
         agreement = np.abs(np.einsum("ij,ij->i", found["primitive_normals"].numpy(), normals))
         scores["normal_agreement"] = float(agreement[usable].mean())
@@ -395,6 +436,20 @@ def write(out: Path, meta, rows, scans):
                          f"{nc_v:.3f} | {nc_p:.3f} | {nc_v - nc_p:+.3f} | {_mean(ok, 'voromesh', 'f1'):.3f} | "
                          f"{_mean(ok, 'poisson', 'f1'):.3f} | {closed:.0f} | {one:.0f} ({one_p:.0f}) | "
                          f"{v_seconds / len(subset):.1f} | {p_seconds / len(subset):.1f} |")
+    wrapped = [r for r in rows if "alpha_wrap" in r and "chamfer_x1e5" in r["voromesh"]]
+    if wrapped:
+        lines += ["", "CGAL's `alpha_wrap_3` (alpha = diagonal / 60, offset = diagonal / 600; `benchmarks/alpha_wrap.cpp`) "
+                      "on the same clouds, where VoroMesh returned a mesh:", "",
+                  "| condition | clouds | VoroMesh CD | alpha wrap CD | VoroMesh NC | alpha wrap NC | VoroMesh F1 | "
+                  "alpha wrap F1 | alpha wrap one piece % | alpha wrap s |", "|---|---|---|---|---|---|---|---|---|---|"]
+        for condition in CONDITIONS:
+            group = [r for r in wrapped if r["condition"] == condition]
+            if group:
+                lines.append(f"| {condition} | {len(group)} | " + " | ".join(
+                    f"{_mean(group, method, key):.3f}" for key in ("chamfer_x1e5", "nc", "f1")
+                    for method in ("voromesh", "alpha_wrap")) +
+                    f" | {100.0 * np.mean([r['alpha_wrap']['pieces'] == 1 for r in group]):.0f} | "
+                    f"{_mean(group, 'alpha_wrap', 'seconds'):.1f} |")
     if rows:
         splits = [r["voromesh"]["split"] for r in rows if "split" in r["voromesh"]]
         split = {k: float(np.sum([s[k] for s in splits])) for k in splits[0]} if splits else {}
@@ -412,10 +467,12 @@ def write(out: Path, meta, rows, scans):
             lines += ["", "Failed: " + "; ".join(f"{r['shape']} / {r['condition']}: {r['voromesh']['error']}" for r in failed)]
     if scans:
         lines += ["", "## Real scans (`../shared/data/scans`)", "",
-                  "Mean distance from the scan points to the mesh, in scan bounding-box diagonals; mean |n_scan . "
-                  "n_mesh| at the scan points that have normals. Poisson: depth 7 or 8, the lower distance.", "",
-                  "| scan | points | VoroMesh distance | Poisson distance | VoroMesh normals | Poisson normals | "
-                  "VoroMesh pieces | Poisson pieces | VoroMesh closed | VoroMesh s | Poisson s |",
+                  "Mean distance from the scan points to the mesh, in scan bounding-box diagonals, at all the points "
+                  "and at those our outlier test keeps (`kept`: far specks weigh heavily in a mean; Poisson wraps "
+                  "them in blobs, we drop them); mean |n_scan . n_mesh| at the scan points that have normals. "
+                  "Poisson: depth 7 or 8, the lower distance.", "",
+                  "| scan | points (kept) | VoroMesh distance (kept) | Poisson distance (kept) | VoroMesh normals | "
+                  "Poisson normals | VoroMesh pieces | Poisson pieces | VoroMesh closed | VoroMesh s | Poisson s |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
         for s in scans:
             v, p = s["voromesh"], s["poisson"]
@@ -423,7 +480,8 @@ def write(out: Path, meta, rows, scans):
                 lines.append(f"| {s['scan']} | {s['points']} | error: {v['error']} | {p['distance']:.5f} | | | | | | | |")
                 continue
             fmt = lambda d: f"{d['normal_agreement']:.3f}" if "normal_agreement" in d else "-"  # noqa: E731
-            lines.append(f"| {s['scan']} | {s['points']} | {v['distance']:.5f} | {p['distance']:.5f} | {fmt(v)} | "
+            kept = lambda d: f"{d['distance']:.2e} ({d['kept_distance']:.2e})"  # noqa: E731
+            lines.append(f"| {s['scan']} | {s['points']} ({s['kept_points']}) | {kept(v)} | {kept(p)} | {fmt(v)} | "
                          f"{fmt(p)} | {v['pieces']} | {p['pieces']} | {v['watertight']} | {v['seconds']:.1f} | "
                          f"{p['seconds']:.1f} |")
     lines += ["", "## Per shape and condition", "",
@@ -476,9 +534,14 @@ def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
         files = [picture_dir / f"scan_{Path(s['scan']).stem}_{m}.ply" for m in ("voromesh", "poisson")]
         if all(f.exists() for f in files):
             v, p = s["voromesh"], s["poisson"]
-            scan_rows.append(([load_mesh(f, weld=False) for f in files],
-                              [f"{s['scan']}: VoroMesh {v['grid']}^3, {v['pieces']} piece(s)",
-                               f"Poisson depth {p['depth']}, {p['pieces']} piece(s)"]))
+            ours, theirs = (load_mesh(f, weld=False) for f in files)
+            scan_rows.append(([ours, theirs], [f"{s['scan']}: VoroMesh {v['grid']}^3, {v['pieces']} piece(s)",
+                                               f"Poisson depth {p['depth']}, {p['pieces']} piece(s)"]))
+            box = ours.get_axis_aligned_bounding_box().scale(1.25, ours.get_center())
+            if theirs.get_axis_aligned_bounding_box().get_max_extent() > 2.0 * box.get_max_extent():
+                # Poisson's blobs around far specks shrink the shared view: the same again, cropped.
+                scan_rows.append(([ours, theirs.crop(box)], [f"{s['scan']}: VoroMesh, close up",
+                                                             "Poisson, cropped to the same box"]))
     if scan_rows:
         render_rows(scan_rows, out.parent / (out.name + "_scans.png"))
 
@@ -513,6 +576,10 @@ def main():
     parser.add_argument("--no-shapes", action="store_true", help="scans only")
     parser.add_argument("--no-poisson", action="store_true", help="VoroMesh only (Open3D's tangent-plane orientation "
                         "can take minutes at 10^5 points)")
+    parser.add_argument("--alpha-wrap", action="store_true", help="also CGAL's alpha_wrap_3 (alpha = diagonal / 60, "
+                        "offset = diagonal / 600), compiled from benchmarks/alpha_wrap.cpp")
+    parser.add_argument("--shell-depth", help="SHELL_DEPTH for this run (fit-frame units, or none: no limit), the "
+                        "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
                         "(later files win; a row without Poisson keeps the earlier file's Poisson)")
@@ -522,6 +589,10 @@ def main():
     if args.merge:
         merge(args.merge, args.out, args.folder)
         return
+    if args.shell_depth is not None:
+        import voro3d.pointcloud.reconstruct as reconstruct_module
+
+        reconstruct_module.SHELL_DEPTH = None if args.shell_depth == "none" else float(args.shell_depth)
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -530,7 +601,7 @@ def main():
     args.out.parent.mkdir(parents=True, exist_ok=True)
     load = lambda: " ".join(Path("/proc/loadavg").read_text().split()[:3])  # noqa: E731
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=f"{platform.machine()}, {multiprocessing.cpu_count()} cores",
-                load_before=load(), grid=args.grid)
+                load_before=load(), grid=args.grid, shell_depth=args.shell_depth or "default")
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]
@@ -538,11 +609,12 @@ def main():
     for path in paths:
         source = load_mesh(path)
         for condition in args.conditions:
-            row = run_condition(source, path.name, condition, grid, picture_dir, with_poisson=not args.no_poisson)
+            row = run_condition(source, path.name, condition, grid, picture_dir, with_poisson=not args.no_poisson,
+                                with_alpha_wrap=args.alpha_wrap)
             rows.append(row)
             print(json.dumps({k: row[k] for k in ("shape", "condition")} |
                              {m: {k: row[m].get(k) for k in ("chamfer_x1e5", "nc", "f1", "pieces", "watertight",
-                                                             "seconds", "error")} for m in ("voromesh", "poisson")
+                                                             "seconds", "error")} for m in ("voromesh", "poisson", "alpha_wrap")
                                                  if m in row}),
                   flush=True)
             meta["load_after"] = load()

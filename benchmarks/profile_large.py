@@ -53,7 +53,7 @@ WRAPPED = {
                                       "point_areas", "winding_level", "imls", "poisson_surface", "target_surface",
                                       "sheet_if_closer", "sheet_target", "_check_coverage", "target_samples", "fit_band", "_drop_stray_cells"],
     "voro3d.pointcloud.normals": ["orient_normals", "_outside_votes"],
-    "voro3d.pointcloud.surface": ["imls", "_mesh_field"],
+    "voro3d.pointcloud.surface": ["imls", "mesh_field"],
     "voro3d.pointcloud.surface.TargetSurface": ["inside", "project"],
     "voro3d.pointcloud.poisson": ["_supported_pieces"],
     "voro3d.pointcloud.poisson.PoissonSurface": ["escape", "distance"],

@@ -146,9 +146,10 @@ Dense clean 100k-point clouds of all 38 dev meshes, VoroMesh only.""",
     "pointcloud_range": """\
 `bench_pointcloud.py`'s virtual range scanner (`range_scan`: Open3D pinhole rays from 1, 3 or 6
 viewpoints, grazing hits dropped, depth noise along the ray) on 12 dev meshes, both methods in one
-run. Where the views cover the object (6 views) the mesh follows the points closer than Poisson's;
-from 1 or 3 views the unseen side is closed by the winding-number field, smoothly but as a rounded
-bulge (a one-view disc comes out as a dome), while Poisson runs flaps out of the box.""",
+run (`--alpha-wrap`: CGAL's `alpha_wrap_3` too). Where the views cover the object (6 views) the mesh
+follows the points closer than Poisson's; from 1 or 3 views the unseen side is closed by the
+winding-number field, at most `SHELL_DEPTH` (6% of the diagonal) behind the seen side where the
+points do not enclose it: a shell, not a block out to the box, while Poisson runs flaps out of it.""",
     "given_normals": """\
 `benchmarks/bench_given_normals.py`: clouds with their own normals (from `estimate_normals()`,
 negated, true) against the same clouds without; given normals are checked and re-oriented where

@@ -10,7 +10,8 @@ from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio
                                reconstruct_points, repair_normals, transfer_colors)
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.reconstruct import MAX_POISSON_ESCAPE
-from voro3d.pointcloud.surface import sheet_surface, winding_level
+from voro3d.pointcloud.surface import sheet_surface, target_surface, winding_level
+from voro3d.pointcloud.tuning import SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
 from voro3d.queries import point_areas
 from voro3d.sampling import sample_surface
@@ -395,6 +396,41 @@ def test_sheet_surface_wraps_a_thin_plate_and_fills_a_cavity():
     ball = sample_surface(example_mesh("sphere"), 4000, seed=0)[0] * 0.8  # spacing about 0.045
     # The inside of a closed cloud is a cavity of the shell: filled, a solid ball again.
     assert sheet_surface(ball, 0.08, 48).inside(np.zeros((1, 3))).all()
+
+
+def test_depth_holds_an_open_scan_in_a_shell_and_keeps_a_closed_inside(sphere_cloud):
+    # One side of a ball (its upper half, normals outward), and the whole ball.
+    points, normals = sphere_cloud[0] * 0.8, sphere_cloud[1]
+    cap = points[:, 2] > 0
+    widths = np.full(cap.sum(), 0.06)
+    behind = np.array([[0.0, 0.0, 0.75], [0.0, 0.0, 0.5], [0.0, 0.0, -0.6]])  # 0.05, 0.3 and 1.4 under the cap
+    free = target_surface(points[cap], normals[cap], widths, 48, level=0.0)
+    assert free.inside(behind).all()  # the winding number reads inside out to the box
+    held = target_surface(points[cap], normals[cap], widths, 48, level=0.0, depth=0.1)
+    assert held.inside(behind).tolist() == [True, False, False]
+    assert not held.inside(np.array([[0.0, 0.0, 0.9]])).any()  # in front of the cap
+    # Where the points enclose what lies deeper, it stays inside (a filled cavity).
+    ball = target_surface(points, normals, np.full(len(points), 0.06), 48, level=0.5, depth=0.1)
+    assert ball.inside(np.array([[0.0, 0.0, 0.0], [0.3, 0.2, -0.1]])).all()
+
+
+def test_an_open_one_sided_sheet_comes_out_as_a_thin_plate():
+    """A bent sheet scanned from one side: a closed plate under the points, not a block out to the box."""
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-1.0, 1.0, (6000, 2))
+    points = np.column_stack([xy, 0.15 * np.sin(2.0 * xy[:, 0])])
+    shape, target, info = reconstruct_points(points, grid=32, steps=100)
+    mesh = cloud_mesh(shape, target)
+    assert info.target == "imls" and check_watertight(mesh).watertight and _pieces(mesh) == 1
+    vertices = np.asarray(mesh.vertices)
+    # Every vertex lies within the shell's depth (in the input's units) and a voxel of the sheet.
+    off_sheet = np.abs(vertices[:, 2] - 0.15 * np.sin(2.0 * vertices[:, 0]))
+    diagonal = np.linalg.norm(np.ptp(points, axis=0))
+    assert off_sheet.max() < SHELL_DEPTH * diagonal / 2.0 + 2.0 * info.voxel
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    distance = scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+    assert np.mean(distance) < 0.25 * info.voxel
 
 
 def test_walls_thinner_than_the_spacing_get_the_sheet_target():

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .denoise import bilateral_filter
-from .surface import supported_pieces
+from .fields import supported_pieces
 
 __all__ = ["PoissonSurface", "poisson_surface", "poisson_depth"]
 

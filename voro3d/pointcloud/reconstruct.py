@@ -4,8 +4,8 @@ Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of
 empty, and noise pulls generators off the surface. So the VoroLoss fit sees dense samples (as
 many as a mesh fit gets) of a target surface that the points define: screened Poisson for
 points that enclose a volume (:mod:`voro3d.pointcloud.poisson`), a robust IMLS field with the
-winding number of the points behind it for open, one-sided scans
-(:mod:`voro3d.pointcloud.surface`), or, for walls sampled on both sides closer than the point
+winding number of the points behind it for open, one-sided scans, held within a shell's depth of
+the points where they do not enclose it (:mod:`voro3d.pointcloud.surface`), or, for walls sampled on both sides closer than the point
 spacing (where both make a lumpy solid), a shell at a small distance around the points
 (:func:`~voro3d.pointcloud.surface.sheet_surface`); the same target labels the cells.
 :func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
@@ -33,7 +33,7 @@ from .surface import imls, target_surface, winding_level
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE,
-                     DENSE_SPACINGS, MAX_TARGET_GRID, STRAY_CELL_SHARE, CLOSED_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE,
+                     DENSE_SPACINGS, MAX_TARGET_GRID, STRAY_CELL_SHARE, CLOSED_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE,
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
@@ -158,7 +158,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        points enclose a volume (their winding level is over ``CLOSED_LEVEL``; bilateral-filtered
        where the noise is over ``HEAVY_NOISE`` octree cells, :mod:`~voro3d.pointcloud.denoise`); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
-       on a grid twice as fine as the VoroMesh grid, meshed by Marching Cubes.
+       held within ``SHELL_DEPTH`` of the points where they do not enclose it (a shell under the
+       seen side, not a block out to the box), on a grid twice as fine as the VoroMesh grid,
+       meshed by Marching Cubes.
     5. The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` (75) of them from the target mesh,
        or, for a dense scan, the points themselves (:func:`~voro3d.pointcloud.resolution.target_samples`); the target
        labels the cells.
@@ -429,7 +431,10 @@ def _target(choice: str, points, given, normals, widths, stats, *, level: float,
             target = None
     kind = "poisson" if target is not None else "imls"
     if target is None:
-        target = target_surface(points, normals, widths, resolution, dense=dense, level=level)
+        # Behind an open scan the solid is held within SHELL_DEPTH of the points (a shell under the
+        # seen side) unless they enclose it; a closed cloud's holes are filled as they are.
+        target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
+                                depth=None if closed else SHELL_DEPTH)
     if choice == "auto" and not target.dense:
         sheet = sheet_if_closer(target, given, stats.median_spacing, resolution)
         if sheet is not None:

@@ -16,7 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "supported_pieces", "target_surface",
+from .fields import MIN_SUPPORT, GridSurface, depth_limit, mesh_field, within
+
+__all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "target_surface",
            "winding_level"]
 
 # Neighbours that enter one IMLS evaluation. Gaussian weights beyond ~3 kernel widths vanish;
@@ -28,44 +30,10 @@ ROBUST_PASSES = 2
 IMLS_BAND = 3.0
 # Gaussian smoothing of the far-field winding numbers, in coarse-grid nodes.
 FAR_FIELD_SMOOTHING = 1.5
-# A piece of surface nearest to fewer points than this share of the best-supported piece's is
-# debris: a blob made by stray points or a noisy patch.
-SUPPORT_SHARE = 0.01
-MIN_SUPPORT = 20
 
 
 @dataclass
-class _GridSurface:
-    """A signed field on a grid over ``[-1, 1]^3`` (the fit frame) and its Marching Cubes mesh."""
-
-    field: np.ndarray
-    vertices: np.ndarray
-    triangles: np.ndarray
-
-    @property
-    def resolution(self) -> int:
-        return self.field.shape[0]
-
-    def _field_at(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Trilinear field at (q, 3) fit-frame points, and their grid indices (q, 3)."""
-        from scipy.ndimage import map_coordinates
-
-        index = (np.asarray(queries, np.float64) + 1.0) * (0.5 * (self.resolution - 1))
-        # Outside the grid is outside: the cval keeps queries beyond [-1, 1]^3 positive.
-        return map_coordinates(self.field, index.T, order=1, mode="constant", cval=1.0), index
-
-    def distance(self, queries: np.ndarray) -> np.ndarray:
-        """(q, 3) fit-frame points -> (q,) float64 distance to the mesh (Open3D, float32)."""
-        import open3d as o3d
-
-        from ..geometry import raycasting_scene
-
-        scene = raycasting_scene(self.vertices, self.triangles)
-        return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
-
-
-@dataclass
-class TargetSurface(_GridSurface):
+class TargetSurface(GridSurface):
     """The target surface on a grid over ``[-1, 1]^3`` (the fit frame).
 
     Attributes
@@ -88,6 +56,10 @@ class TargetSurface(_GridSurface):
         Winding number that separates inside from outside (:func:`winding_level`).
     dense : bool
         Near the surface, decide inside by the winding number instead of IMLS (see ``inside``).
+    limit : (r, r, r) float64 or None
+        Where the solid is held within a depth of the points (``target_surface(depth=...)``): the
+        blurred distance to the points minus that depth, negative within it; the inside is where
+        both this and the field are negative (outside the cavities it closes).
     """
 
     points: np.ndarray
@@ -97,6 +69,7 @@ class TargetSurface(_GridSurface):
     areas: np.ndarray
     level: float
     dense: bool = False
+    limit: np.ndarray | None = None
 
     def inside(self, queries: np.ndarray) -> np.ndarray:
         """(q, 3) fit-frame points -> (q,) bool, True inside.
@@ -124,6 +97,10 @@ class TargetSurface(_GridSurface):
             distance, nearest = tree.query(queries[close], workers=-1)
             at = np.flatnonzero(close)[distance <= IMLS_BAND * self.widths[nearest]]
             value[at], _, _ = imls(self.points, self.normals, self.widths, queries[at], tree=tree)
+        if self.limit is not None:
+            from scipy.ndimage import map_coordinates
+
+            value[close] = np.maximum(value[close], map_coordinates(self.limit, index[close].T, order=1, mode="nearest"))
         return value < 0
 
     def project(self, queries: np.ndarray) -> np.ndarray:
@@ -139,7 +116,7 @@ class TargetSurface(_GridSurface):
 
 
 @dataclass
-class SheetSurface(_GridSurface):
+class SheetSurface(GridSurface):
     """The shell at distance ``offset`` around the points (:func:`sheet_surface`), as a target.
 
     The same interface as :class:`TargetSurface`: ``field`` (negative inside) on a grid over
@@ -185,23 +162,13 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     -------
     SheetSurface
     """
-    from scipy import ndimage
     from scipy.spatial import cKDTree
 
     from ..geometry import grid_voxel
-    from ..sampling import grid_nodes
 
-    step = grid_voxel(resolution)
-    # Beyond a few steps past the offset only the side matters: clamp there (the blur's reach).
-    far = offset + 4.0 * step
-    distance, _ = cKDTree(points).query(grid_nodes(resolution), distance_upper_bound=far, workers=-1)
-    distance = np.minimum(distance, far).reshape((resolution,) * 3)
-    field = ndimage.gaussian_filter(distance, 1.0, mode="nearest") - offset
-    outside, _ = ndimage.label(field >= 0)
-    open_space = np.unique(np.concatenate([np.ravel(np.take(outside, [0, -1], axis=a)) for a in range(3)]))
-    cavity = (outside > 0) & ~np.isin(outside, open_space)
-    field[cavity] = -step
-    supported, vertices, triangles = _mesh_field(field, points, MIN_SUPPORT)
+    limit = depth_limit(cKDTree(points), resolution, offset)
+    field = within(limit.copy(), limit, grid_voxel(resolution))
+    supported, vertices, triangles = mesh_field(field, points, MIN_SUPPORT)
     return SheetSurface(supported, vertices, triangles, float(offset))
 
 
@@ -267,7 +234,8 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
 
 
 def target_surface(points, normals, widths, resolution: int, *, dense: bool = False,
-                   min_support: int = MIN_SUPPORT, level: float | None = None) -> TargetSurface:
+                   min_support: int = MIN_SUPPORT, level: float | None = None,
+                   depth: float | None = None) -> TargetSurface:
     """Sample the field on a ``resolution^3`` grid over ``[-1, 1]^3`` and mesh it.
 
     Parameters
@@ -281,10 +249,15 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     dense : bool
         See :attr:`TargetSurface.dense`.
     min_support : int
-        Pieces of surface nearest to fewer points (or to fewer than ``SUPPORT_SHARE`` of the
-        best-supported piece's) are debris and are removed (:func:`_drop_unsupported`).
+        Pieces of surface nearest to fewer points (or to fewer than ``fields.SUPPORT_SHARE`` of the
+        best-supported piece's) are debris and are removed (:func:`~voro3d.pointcloud.fields.mesh_field`).
     level : float, optional
         The cloud's :func:`winding_level`, when the caller has it already.
+    depth : float, optional
+        Fit-frame units. The solid reaches no further than this from the points, except where
+        it encloses what lies further (the inside of a surface seen all round, or closed but for
+        holes narrower than twice the depth): behind a one-sided scan it is then a shell this
+        thick under the seen side, instead of a block out to the box (:func:`~voro3d.pointcloud.fields.depth_limit`).
 
     Returns
     -------
@@ -324,9 +297,14 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
         level = float(np.clip(winding_level(points, normals, areas, float(np.median(widths))), 0.0, 0.5))
     field[far] = (level - winding) * 2.0 * float(np.median(widths))
     field = field.reshape((resolution,) * 3)
-    supported, vertices, triangles = _mesh_field(field, points, min_support)
+    limit = None
+    if depth is not None:
+        limit = depth_limit(tree, resolution, depth)
+        field = within(field, limit, step)
+    supported, vertices, triangles = mesh_field(field, points, min_support)
     return TargetSurface(supported, vertices, triangles, points, normals, widths,
-                         removed=np.sign(supported) != np.sign(field), areas=areas, level=level, dense=dense)
+                         removed=np.sign(supported) != np.sign(field), areas=areas, level=level, dense=dense,
+                         limit=limit)
 
 
 def winding_level(points, normals, areas, offset: float, *, n_probes: int = 20000) -> float:
@@ -346,118 +324,3 @@ def winding_level(points, normals, areas, offset: float, *, n_probes: int = 2000
     winding = point_winding_number(points, normals, np.vstack([points[probes] - offset * normals[probes],
                                                                points[probes] + offset * normals[probes]]), areas=areas)
     return float(0.5 * (np.median(winding[:len(probes)]) + np.median(winding[len(probes):])))
-
-
-def supported_pieces(vertices, triangles, points, *, min_support: int = MIN_SUPPORT):
-    """Which connected pieces of a mesh the points support.
-
-    Each piece is supported by the points nearer to one of its vertices than to any other
-    piece's. A piece with fewer than ``min_support`` of them, or fewer than ``SUPPORT_SHARE`` of
-    the best-supported piece's, is debris (the blob that stray points or a noisy patch make);
-    the best-supported piece is always kept, and a cloud of several real objects keeps them all.
-
-    Parameters
-    ----------
-    vertices : (v, 3) float64
-    triangles : (t, 3) int64
-    points : (n, 3) float64
-        In the vertices' coordinates.
-    min_support : int
-
-    Returns
-    -------
-    piece : (v,) int
-        Piece of each vertex.
-    kept : (pieces,) bool
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    n = vertices.shape[0]
-    edges = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    pieces, piece = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),
-                                         directed=False)
-    if pieces <= 1:
-        return piece, np.ones(pieces, bool)
-    _, nearest = cKDTree(vertices).query(points, workers=-1)
-    support = np.bincount(piece[nearest], minlength=pieces)
-    kept = support >= max(min_support, SUPPORT_SHARE * support.max())
-    kept[np.argmax(support)] = True
-    return piece, kept
-
-
-def _mesh_field(field, points, min_support):
-    """The closed mesh of a target field, without the pieces the points do not support.
-
-    The outermost nodes are set outside (in place): a solid that reaches the box (behind a
-    one-sided scan) is closed a node inside it, where the fit's generators (kept in the box) can
-    straddle it. Then Marching Cubes, and :func:`_drop_unsupported`.
-
-    Returns
-    -------
-    supported : (r, r, r) float64
-        ``field``, or a copy with the unsupported pieces' regions flipped.
-    vertices : (v, 3) float64
-        Fit frame.
-    triangles : (t, 3) int64
-    """
-    step = 2.0 / (field.shape[0] - 1)
-    for axis in range(3):
-        ends = [slice(None)] * 3
-        ends[axis] = [0, -1]
-        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
-    vertices, triangles = _marching_cubes(field.astype(np.float32))
-    supported = _drop_unsupported(field, vertices, triangles, points, min_support)
-    if supported is not field:
-        vertices, triangles = _marching_cubes(supported.astype(np.float32))
-    return supported, vertices * step - 1.0, triangles
-
-
-def _drop_unsupported(field, vertices, triangles, points, min_support):
-    """The field with unsupported pieces of surface removed (``field`` itself when none is).
-
-    ``vertices, triangles`` are the Marching Cubes mesh of ``field`` in grid-index coordinates.
-
-    The connected pieces of the zero set (Marching Cubes) that the points do not support
-    (:func:`supported_pieces`) are debris: the solid region such a piece encloses is flipped to
-    outside (or the cavity to inside) unless a kept piece also bounds it.
-    """
-    from scipy import ndimage
-
-    piece, kept = supported_pieces(vertices, triangles, (points + 1.0) * (0.5 * (field.shape[0] - 1)),
-                                   min_support=min_support)
-    if kept.all():
-        return field
-    # A Marching Cubes vertex lies on a grid edge; the edge's two nodes are the regions it bounds.
-    ends = np.stack([np.floor(vertices), np.ceil(vertices)], axis=1).astype(np.int64)
-    ends = np.minimum(ends, field.shape[0] - 1)
-    kept_vertex = np.repeat(kept[piece], 2)
-    nodes = tuple(ends.reshape(-1, 3).T)
-    for inside in (True, False):
-        labels, count = ndimage.label(field < 0 if inside else field >= 0)
-        touched = labels[nodes]
-        keep = np.zeros(count + 1, bool)
-        keep[touched[kept_vertex]] = True
-        if not inside:  # the outside reaching the border of the grid always stays
-            keep[labels[0, 0, 0]] = True
-        keep[0] = True
-        flip = ~keep[labels]
-        field = np.where(flip, -field, field)
-        if not inside:
-            field[flip & (field == 0)] = -1e-6
-    return field
-
-
-def _marching_cubes(field):
-    """Closed, outward Marching Cubes mesh of the zero set, in grid-index coordinates (the
-    outermost nodes are outside, so the surface closes)."""
-    from skimage.measure import marching_cubes
-
-    vertices, triangles, _, _ = marching_cubes(field, level=0.0)
-    triangles = triangles.astype(np.int64)
-    # skimage orients faces towards increasing values (outward here) by the gradient; check.
-    a, b, c = (vertices[triangles[:, i]] for i in range(3))
-    if np.einsum("ij,ij->i", a, np.cross(b, c)).sum() < 0:
-        triangles = triangles[:, ::-1]
-    return vertices.astype(np.float64), np.ascontiguousarray(triangles)

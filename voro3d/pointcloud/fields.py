@@ -1,0 +1,194 @@
+"""Fields on a grid over the fit frame's ``[-1, 1]^3`` and their closed meshes.
+
+The plumbing the target surfaces of :mod:`~voro3d.pointcloud.surface` share: a signed field on a
+grid (:class:`GridSurface`: trilinear values, distance to its mesh), its Marching Cubes mesh
+without the pieces the points do not support (:func:`supported_pieces`), and the distance-to-points
+field that holds a solid near the points (:func:`depth_limit`, :func:`within`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["GridSurface", "depth_limit", "mesh_field", "supported_pieces", "within"]
+
+# A piece of surface nearest to fewer points than this share of the best-supported piece's is
+# debris: a blob made by stray points or a noisy patch.
+SUPPORT_SHARE = 0.01
+MIN_SUPPORT = 20
+
+
+@dataclass
+class GridSurface:
+    """A signed field on a grid over ``[-1, 1]^3`` (the fit frame) and its Marching Cubes mesh."""
+
+    field: np.ndarray
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+    @property
+    def resolution(self) -> int:
+        return self.field.shape[0]
+
+    def _field_at(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Trilinear field at (q, 3) fit-frame points, and their grid indices (q, 3)."""
+        from scipy.ndimage import map_coordinates
+
+        index = (np.asarray(queries, np.float64) + 1.0) * (0.5 * (self.resolution - 1))
+        # Outside the grid is outside: the cval keeps queries beyond [-1, 1]^3 positive.
+        return map_coordinates(self.field, index.T, order=1, mode="constant", cval=1.0), index
+
+    def distance(self, queries: np.ndarray) -> np.ndarray:
+        """(q, 3) fit-frame points -> (q,) float64 distance to the mesh (Open3D, float32)."""
+        import open3d as o3d
+
+        from ..geometry import raycasting_scene
+
+        scene = raycasting_scene(self.vertices, self.triangles)
+        return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
+
+
+def depth_limit(tree, resolution: int, depth: float) -> np.ndarray:
+    """Distance from each node to the nearest point minus ``depth``, blurred by a Gaussian of one
+    node so that the union of balls does not show on the far side of the shell."""
+    from scipy import ndimage
+
+    from ..geometry import grid_voxel
+    from ..sampling import grid_nodes
+
+    far = depth + 4.0 * grid_voxel(resolution)  # the blur's reach: beyond it only the side matters
+    distance, _ = tree.query(grid_nodes(resolution), distance_upper_bound=far, workers=-1)
+    distance = np.minimum(distance, far).reshape((resolution,) * 3)
+    return ndimage.gaussian_filter(distance, 1.0, mode="nearest") - depth
+
+
+def within(field, limit, step: float) -> np.ndarray:
+    """``field``'s solid cut to where ``limit`` is negative, with the cavities this leaves (outside
+    regions that do not reach the grid's border: the inside of a closed part) filled; ``limit``
+    is set inside there too (in place), so that it never cuts a filled cavity."""
+    from scipy import ndimage
+
+    field = np.maximum(field, limit)
+    outside, _ = ndimage.label(field >= 0)
+    open_space = np.unique(np.concatenate([np.ravel(np.take(outside, [0, -1], axis=a)) for a in range(3)]))
+    cavity = (outside > 0) & ~np.isin(outside, open_space)
+    field[cavity] = -step
+    limit[cavity] = -step
+    return field
+
+
+
+def supported_pieces(vertices, triangles, points, *, min_support: int = MIN_SUPPORT):
+    """Which connected pieces of a mesh the points support.
+
+    Each piece is supported by the points nearer to one of its vertices than to any other
+    piece's. A piece with fewer than ``min_support`` of them, or fewer than ``SUPPORT_SHARE`` of
+    the best-supported piece's, is debris (the blob that stray points or a noisy patch make);
+    the best-supported piece is always kept, and a cloud of several real objects keeps them all.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float64
+    triangles : (t, 3) int64
+    points : (n, 3) float64
+        In the vertices' coordinates.
+    min_support : int
+
+    Returns
+    -------
+    piece : (v,) int
+        Piece of each vertex.
+    kept : (pieces,) bool
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = vertices.shape[0]
+    edges = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    pieces, piece = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)),
+                                         directed=False)
+    if pieces <= 1:
+        return piece, np.ones(pieces, bool)
+    _, nearest = cKDTree(vertices).query(points, workers=-1)
+    support = np.bincount(piece[nearest], minlength=pieces)
+    kept = support >= max(min_support, SUPPORT_SHARE * support.max())
+    kept[np.argmax(support)] = True
+    return piece, kept
+
+
+def mesh_field(field, points, min_support):
+    """The closed mesh of a target field, without the pieces the points do not support.
+
+    The outermost nodes are set outside (in place): a solid that reaches the box (behind a
+    one-sided scan) is closed a node inside it, where the fit's generators (kept in the box) can
+    straddle it. Then Marching Cubes, and :func:`_drop_unsupported`.
+
+    Returns
+    -------
+    supported : (r, r, r) float64
+        ``field``, or a copy with the unsupported pieces' regions flipped.
+    vertices : (v, 3) float64
+        Fit frame.
+    triangles : (t, 3) int64
+    """
+    step = 2.0 / (field.shape[0] - 1)
+    for axis in range(3):
+        ends = [slice(None)] * 3
+        ends[axis] = [0, -1]
+        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
+    vertices, triangles = _marching_cubes(field.astype(np.float32))
+    supported = _drop_unsupported(field, vertices, triangles, points, min_support)
+    if supported is not field:
+        vertices, triangles = _marching_cubes(supported.astype(np.float32))
+    return supported, vertices * step - 1.0, triangles
+
+
+def _drop_unsupported(field, vertices, triangles, points, min_support):
+    """The field with unsupported pieces of surface removed (``field`` itself when none is).
+
+    ``vertices, triangles`` are the Marching Cubes mesh of ``field`` in grid-index coordinates.
+
+    The connected pieces of the zero set (Marching Cubes) that the points do not support
+    (:func:`supported_pieces`) are debris: the solid region such a piece encloses is flipped to
+    outside (or the cavity to inside) unless a kept piece also bounds it.
+    """
+    from scipy import ndimage
+
+    piece, kept = supported_pieces(vertices, triangles, (points + 1.0) * (0.5 * (field.shape[0] - 1)),
+                                   min_support=min_support)
+    if kept.all():
+        return field
+    # A Marching Cubes vertex lies on a grid edge; the edge's two nodes are the regions it bounds.
+    ends = np.stack([np.floor(vertices), np.ceil(vertices)], axis=1).astype(np.int64)
+    ends = np.minimum(ends, field.shape[0] - 1)
+    kept_vertex = np.repeat(kept[piece], 2)
+    nodes = tuple(ends.reshape(-1, 3).T)
+    for inside in (True, False):
+        labels, count = ndimage.label(field < 0 if inside else field >= 0)
+        touched = labels[nodes]
+        keep = np.zeros(count + 1, bool)
+        keep[touched[kept_vertex]] = True
+        if not inside:  # the outside reaching the border of the grid always stays
+            keep[labels[0, 0, 0]] = True
+        keep[0] = True
+        flip = ~keep[labels]
+        field = np.where(flip, -field, field)
+        if not inside:
+            field[flip & (field == 0)] = -1e-6
+    return field
+
+
+def _marching_cubes(field):
+    """Closed, outward Marching Cubes mesh of the zero set, in grid-index coordinates (the
+    outermost nodes are outside, so the surface closes)."""
+    from skimage.measure import marching_cubes
+
+    vertices, triangles, _, _ = marching_cubes(field, level=0.0)
+    triangles = triangles.astype(np.int64)
+    # skimage orients faces towards increasing values (outward here) by the gradient; check.
+    a, b, c = (vertices[triangles[:, i]] for i in range(3))
+    if np.einsum("ij,ij->i", a, np.cross(b, c)).sum() < 0:
+        triangles = triangles[:, ::-1]
+    return vertices.astype(np.float64), np.ascontiguousarray(triangles)
