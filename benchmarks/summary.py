@@ -126,11 +126,11 @@ under a minute and about 2-2.7 GB; Poisson depth 9's CD is 0.2% lower with 48x t
     "plan": """\
 `benchmarks/bench_plan.py`: each rule of a cloud's plan (`voro3d/pointcloud/plan.py`) turned the other
 way on the clouds where it applies, 8 dev meshes x 5 conditions, no normals. The smoothing pass pays
-on noisy clouds (CD 5.9 against 19.0) and is a wash elsewhere; refusing a Poisson surface that flaps
-out past the points pays on every 3-view scan where it fires (CD 68 against 842); the shell fired on
-one cloud (a cup lid, CD 38 against 1,385); Poisson for closed clouds pays on clean and noisy ones,
-while on 1- and 3-view scans Poisson in place of IMLS gives a lower mean CD (CAD parts much lower,
-organic ones much higher) and lower NC and F1: no global choice is right there.""",
+on noisy clouds (CD 5.9 against 19.3) and is a wash elsewhere; refusing a Poisson surface that flaps
+out past the points pays on every 3-view scan where it fires (CD 69 against 843); the shell fired on
+one cloud (a cup lid, CD 38 against 1,356); Poisson for closed clouds and IMLS, held within
+`SHELL_DEPTH` of the points, for open ones pay on every condition (1-view scans: CD 348 against
+1,133 with Poisson, NC 0.734 against 0.599; 3-view: 73 against 289).""",
     "colours": """\
 `benchmarks/bench_colours.py`: a cloud's colours on its mesh, by position (smooth) and by |normal|
 (fast), voro3d with its mesh split flat to about one vertex per point, without the split, and
