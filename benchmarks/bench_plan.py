@@ -61,7 +61,7 @@ def _run(points, source, grid, plan=None) -> tuple[dict, object]:
     try:
         shape, target, info = reconstruct_points(points, grid=grid, plan=plan)
         mesh = cloud_mesh(shape, target)
-        _check_fit(mesh, points, info.voxel)
+        _check_fit(mesh, points, info.voxel, info.offset)
     except (ValueError, RuntimeError) as error:
         return dict(error=f"{type(error).__name__}: {error}", seconds=time.perf_counter() - start), None
     scores = evaluate(mesh, source)

@@ -296,7 +296,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
     try:
         shape, target, info = reconstruct_points(points, grid=grid, progress=False)
         mesh = cloud_mesh(shape, target)
-        _check_fit(mesh, points, info.voxel)  # what reconstruct refuses is an error here too
+        _check_fit(mesh, points, info.voxel, info.offset)  # what reconstruct refuses is an error here too
         if colours is not None:
             mesh = colored_mesh(mesh, points, colours)
         seconds = time.perf_counter() - start

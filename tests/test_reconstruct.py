@@ -260,6 +260,11 @@ def test_a_mesh_far_off_its_points_is_refused():
     moved = o3d.geometry.TriangleMesh(sphere).translate([0.3, 0.0, 0.0])
     with pytest.raises(ValueError, match="voxels from the median point"):
         _check_fit(moved, points, 0.05)
+    # A shell the target keeps 0.08 off the points by design (target "sheet") is no misfit.
+    shell = o3d.geometry.TriangleMesh(sphere).scale(1.08, center=(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="voxels from the median point"):
+        _check_fit(shell, points, 0.05)
+    _check_fit(shell, points, 0.05, offset=0.08)
 
 
 @pytest.mark.parametrize("make", [lambda grid: reconstruct(example_mesh(), grid), lambda grid: VoroMeshStage(grid)])

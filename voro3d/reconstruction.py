@@ -175,7 +175,7 @@ def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *,
                                                  **options)
         piece = cloud_mesh(shape, target, clean=clean, progress=progress)
         subset = analysis_subset(len(group), 0)
-        _check_fit(piece, points[group if subset is None else group[subset]], info.voxel)
+        _check_fit(piece, points[group if subset is None else group[subset]], info.voxel, info.offset)
         if colors is not None:
             piece = colored_mesh(piece, points[group], colors[group])
         mesh += piece
@@ -239,8 +239,9 @@ class VoroMeshStage:
         return "VoroMeshStage(" + ", ".join(f"{k}={v!r}" for k, v in self.options.items()) + ")"
 
 
-def _check_fit(mesh, points, voxel: float) -> None:
-    """Refuse a cloud's mesh that is far off its points (``MAX_HULL_VOLUME``, ``MAX_MEDIAN_DISTANCE``)."""
+def _check_fit(mesh, points, voxel: float, offset: float = 0.0) -> None:
+    """Refuse a cloud's mesh that is far off its points (``MAX_HULL_VOLUME``, ``MAX_MEDIAN_DISTANCE``
+    voxels beyond the ``offset`` its target keeps from them by design, ``PointCloudInfo.offset``)."""
     from scipy.spatial import ConvexHull
 
     from .queries import InsideOutside
@@ -250,7 +251,7 @@ def _check_fit(mesh, points, voxel: float) -> None:
     if ratio > MAX_HULL_VOLUME:
         raise ValueError(f"the reconstructed surface encloses {ratio:.1f} times the volume of the points' convex hull: "
                          "it balloons around the points instead of following them (normals that point every which way?)")
-    distance = float(np.median(InsideOutside(mesh).unsigned_distance(points))) / voxel
+    distance = (float(np.median(InsideOutside(mesh).unsigned_distance(points))) - offset) / voxel
     if distance > MAX_MEDIAN_DISTANCE:
         raise ValueError(f"the reconstructed surface lies {distance:.1f} voxels from the median point: it does not follow "
                          "the points")

@@ -73,6 +73,9 @@ class PointCloudInfo:
         uniform grid.
     voxel : float
         The grid's voxel, in the input's units.
+    offset : float
+        How far the target keeps from the points by design, in the input's units: the shell's
+        offset for target ``"sheet"``, else 0.
     tiles : int
         Tiles the fit was cut into (:mod:`voro3d.pointcloud.tiles`): 0 for a cloud of at most
         ``TILE_POINTS`` points, whose fit is one loop.
@@ -92,6 +95,7 @@ class PointCloudInfo:
     grid: int
     levels: int
     voxel: float
+    offset: float
     tiles: int
     seconds: dict
 
@@ -379,7 +383,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     info = PointCloudInfo(n_points=n_points, n_outliers=int(outliers.sum()),
                           spacing=stats.median_spacing / frame.scale, noise=stats.noise / frame.scale,
                           noisy=bool(noisy), normals=normal_source, level=level, plan=plan, grid=grid, levels=levels,
-                          voxel=grid_voxel(grid) / frame.scale, tiles=n_tiles, seconds=seconds)
+                          voxel=grid_voxel(grid) / frame.scale, offset=target.offset / frame.scale if kind == "sheet" else 0.0,
+                          tiles=n_tiles, seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
                             smoothing=NOISY_SMOOTHING if noisy else 0.0)
     return shape, surface, info
