@@ -45,7 +45,8 @@ def run_mesh(name: str, n_points: int, uniform, finest: int, tolerances) -> list
     from voro3d.frames import fit_frame
     from voro3d.generators import AdaptiveBand
     from voro3d.pointcloud.poisson import poisson_depth, poisson_surface
-    from voro3d.pointcloud.reconstruct import SnapTarget, _drop_stray_cells, cloud_mesh
+    from voro3d.pointcloud.debris import drop_stray_cells
+    from voro3d.pointcloud.reconstruct import SnapTarget, cloud_mesh
     from voro3d.pointcloud.resolution import band_levels, target_samples
     from voro3d.pointcloud.tuning import CLOUD_STEPS, MAX_TARGET_GRID
     from voro3d.sampling import sample_surface
@@ -65,7 +66,7 @@ def run_mesh(name: str, n_points: int, uniform, finest: int, tolerances) -> list
         samples = target_samples(target, vertices, framed, grid, band=band, seed=0)
         shape, info = fit_samples(samples, target.inside, grid, frame=frame, steps=CLOUD_STEPS,
                                   generators=None if band is None else band.generators())
-        shape = _drop_stray_cells(shape)
+        shape = drop_stray_cells(shape)
         seconds = time.perf_counter() - start
         out = cloud_mesh(shape, snap)
         score = voro3d.evaluate(out, mesh)

@@ -51,7 +51,7 @@ WRAPPED = {
     "voro3d.pointcloud.reconstruct": ["merge_duplicates", "outlier_mask", "cloud_stats", "local_dimension",
                                       "fill_ratio", "estimate_normals", "orient_normals", "sign_disagreement",
                                       "point_areas", "winding_level", "imls", "poisson_surface", "target_surface",
-                                      "sheet_if_closer", "sheet_target", "_check_coverage", "target_samples", "fit_band", "_drop_stray_cells"],
+                                      "sheet_if_closer", "sheet_target", "_check_coverage", "target_samples", "fit_band", "drop_stray_cells"],
     "voro3d.pointcloud.normals": ["orient_normals", "_outside_votes"],
     "voro3d.pointcloud.surface": ["imls", "mesh_field"],
     "voro3d.pointcloud.surface.TargetSurface": ["inside", "project"],

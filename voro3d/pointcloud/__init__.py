@@ -64,9 +64,11 @@ the points define (``voro3d/pointcloud/``):
      flat, for 1.5-3 s more a cloud.
    - *One-sided scans* (``surface.py``): the IMLS field (kernel width per point the larger of
      0.75-1.5 local spacings and 4 noise deviations) near the points and the smoothed winding
-     number away from them, at the level that puts the solid behind the scanned side, sampled
-     on a grid twice as fine as the VoroMesh grid and meshed by Marching Cubes, debris removed
-     as above.
+     number away from them, at the level that puts the solid behind the scanned side, held
+     within ``SHELL_DEPTH`` (6% of the diagonal) of the points where they do not enclose it (a
+     shell under the seen side instead of a block out to the box; ``fields.py``), sampled on a
+     grid twice as fine as the VoroMesh grid and meshed by Marching Cubes, debris removed as
+     above (and stray cells after the fit, ``debris.py``).
    - *Walls thinner than the spacing, sampled on both sides* (a lid, a shell): the normals of
      the two sides mix and both targets above come out as a lumpy solid whose surface runs far
      from the points. When the target misses the points both ways (the points lie on average

@@ -30,10 +30,11 @@ from .poisson import poisson_depth, poisson_surface
 from .resolution import choose_grid, fit_band, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_normals, sheet_if_closer, sheet_target
 from .surface import imls, target_surface, winding_level
+from .debris import drop_stray_cells
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE,
-                     DENSE_SPACINGS, MAX_TARGET_GRID, STRAY_CELL_SHARE, CLOSED_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE,
+                     DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE,
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
@@ -376,7 +377,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                                           engine=engine, workers=workers, threads=threads, progress=progress,
                                           options=fit_options)
         n_samples = len(samples)
-        shape = _drop_stray_cells(shape)
+        shape = drop_stray_cells(shape)
         seconds["fit"] = time.perf_counter() - start
     report_phase(progress, "fit", f"{method}, {len(shape.generators):,} generators, "
                  f"{n_samples if method == 'fit' else 0:,} samples{f', {n_tiles} tiles' if n_tiles else ''}", seconds["fit"])
@@ -445,40 +446,6 @@ def _target(choice: str, points, given, normals, widths, stats, *, level: float,
         if sheet is not None:
             return "sheet", sheet
     return kind, target
-
-
-def _drop_stray_cells(shape):
-    """The VoroMesh with specks of debris relabelled: small groups of cells cut off from their kind.
-
-    Inside cells joined by Voronoi faces (Delaunay edges) form groups; a group of fewer than
-    ``STRAY_CELL_SHARE`` of the largest group's cells (and at most 8) is a speck: cells whose
-    label the samples nearby could not settle, turned outside. Likewise a small group of outside
-    cells that does not reach the exterior (the bounding corners) is a bubble in the solid,
-    turned inside. Flipping whole cells keeps the surface closed: it is extracted again from the
-    labels.
-    """
-    from ..geometry import components
-
-    if shape.occupancy.sum() < 2:
-        return shape
-    triangulation = shape.triangulated()
-    n = triangulation.n_sites
-    inside = triangulation.site_occupancy(shape.occupancy)  # the 8 bounding corners are outside
-    tets = triangulation.tets
-    edges = tets[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
-    same = edges[inside[edges[:, 0]] == inside[edges[:, 1]]]
-    groups, group = components(n + 8, same)
-    size = np.bincount(group, minlength=groups)
-    kind = np.zeros(groups, bool)
-    kind[group[inside]] = True
-    largest_inside = size[kind].max()
-    stray = kind & (size < STRAY_CELL_SHARE * largest_inside) & (size <= 8)
-    bubble = ~kind & (size <= 8)
-    bubble[group[n:]] = False  # the exterior
-    flip = (stray | bubble)[group[:n]]
-    if not flip.any():
-        return shape
-    return shape.relabelled((inside[:n] ^ flip)[triangulation.site])
 
 
 def _check_coverage(target, points, widths) -> None:
