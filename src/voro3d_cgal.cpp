@@ -162,6 +162,36 @@ bool meet(const Piece& p, const Piece& q) {
   }
 }
 
+// Whether two non-degenerate triangles that share corners (`shared` of them, by position) meet
+// beyond what they share, exactly. Sharing one corner v: they cross iff the edge of one opposite
+// v meets the other (the segment along which they meet starts at v and ends on such an edge).
+// Sharing an edge: only coplanar with both third corners on the same side (a fold flat on itself).
+bool neighbours_cross(const Point (&p)[3], const Point (&q)[3], int shared) {
+  auto corner_of = [](const Point (&x)[3], const Point (&y)[3], bool want_shared) {
+    for (int k = 0; k < 3; ++k) {
+      const bool in = x[k] == y[0] || x[k] == y[1] || x[k] == y[2];
+      if (in == want_shared) return k;
+    }
+    return -1;
+  };
+  if (shared == 1) {
+    const int vp = corner_of(p, q, true), vq = corner_of(q, p, true);
+    if (vp < 0 || vq < 0) return false;
+    const Segment opposite_p(p[(vp + 1) % 3], p[(vp + 2) % 3]);
+    const Segment opposite_q(q[(vq + 1) % 3], q[(vq + 2) % 3]);
+    return CGAL::do_intersect(Triangle(p[0], p[1], p[2]), opposite_q) ||
+           CGAL::do_intersect(Triangle(q[0], q[1], q[2]), opposite_p);
+  }
+  if (shared == 2) {
+    const int tp = corner_of(p, q, false), tq = corner_of(q, p, false);
+    if (tp < 0 || tq < 0) return false;
+    const Point& u = p[(tp + 1) % 3];
+    const Point& w = p[(tp + 2) % 3];
+    return CGAL::coplanar(u, w, p[tp], q[tq]) && CGAL::coplanar_orientation(u, w, p[tp], q[tq]) == CGAL::POSITIVE;
+  }
+  return false;
+}
+
 using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::size_t>;
 using Boxes = std::vector<Box>;
 
@@ -211,8 +241,8 @@ struct BoxSplit {
 };
 }  // namespace
 
-// Pairs (i < j) of triangles that share no vertex index and whose closed point sets intersect,
-// decided exactly. Candidates are the pairs whose bounding boxes meet (CGAL's box intersection,
+// Pairs (i < j) of triangles that cross, decided exactly: their closed point sets intersect, or,
+// for neighbours sharing corners by index, they meet beyond those corners (neighbours_cross). Candidates are the pairs whose bounding boxes meet (CGAL's box intersection,
 // Zomorodian and Edelsbrunner), so the cost follows the number of nearby pairs, not its square.
 // With `changed`, a (t,) bool mask, only the pairs with at least one changed triangle are tested.
 // With `parallel`, from kParallelBoxes triangles on, the work is split over two threads (see
@@ -247,20 +277,30 @@ py::array_t<std::int64_t> self_intersecting_pairs(const py::object& vertices_in,
       pieces.push_back(piece_of(a, b, c));
       boxes.emplace_back(a.bbox() + b.bbox() + c.bbox(), i);  // doubles: the boxes are exact
     }
-    auto shares_index = [&](std::size_t i, std::size_t j) {
+    auto shared_indices = [&](std::size_t i, std::size_t j) {
+      int shared = 0;
       for (int k = 0; k < 3; ++k) {
-        for (int l = 0; l < 3; ++l) {
-          if (t(i, k) == t(j, l)) return true;
-        }
+        for (int l = 0; l < 3; ++l) shared += t(i, k) == t(j, l);
       }
-      return false;
+      return shared;
+    };
+    // Neighbours (sharing corners by index) meet where they share them; they cross only beyond.
+    auto crossing = [&](std::size_t i, std::size_t j) {
+      if (shared_indices(i, j) == 0) return meet(pieces[i], pieces[j]);
+      if (pieces[i].kind != 2 || pieces[j].kind != 2) return false;
+      const Point p[3] = {points[t(i, 0)], points[t(i, 1)], points[t(i, 2)]};
+      const Point q[3] = {points[t(j, 0)], points[t(j, 1)], points[t(j, 2)]};
+      // Corners shared by position: a duplicated vertex (sheets touching) counts as shared.
+      int shared = 0;
+      for (const Point& x : p) shared += x == q[0] || x == q[1] || x == q[2];
+      return neighbours_cross(p, q, shared);
     };
     // The pairs of one part of the work, into `found` (each thread has its own).
     auto search = [&](const BoxPart& part, std::vector<std::int64_t>& found) {
       auto test = [&](const Box& x, const Box& y) {
         const std::size_t i = std::min(x.info(), y.info());
         const std::size_t j = std::max(x.info(), y.info());
-        if (!shares_index(i, j) && meet(pieces[i], pieces[j])) {
+        if (crossing(i, j)) {
           found.push_back(static_cast<std::int64_t>(i));
           found.push_back(static_cast<std::int64_t>(j));
         }

@@ -119,15 +119,24 @@ def test_exact_pair_cases(other, expected):
     assert _pairs(TRIANGLE, np.asarray(other, float)) == expected
 
 
-def test_neighbours_sharing_an_index_are_not_tested():
-    # Two coplanar triangles that overlap but share vertex 0 (by index): not reported; given a
-    # copy of that vertex instead they are.
+def test_neighbours_that_meet_beyond_a_shared_vertex_cross():
+    # Two coplanar triangles that overlap and share vertex 0 (by index) cross; given a copy of
+    # that vertex instead, they are sheets touching there.
     vertices = np.vstack([TRIANGLE, [[0.5, 0.5, 0], [-0.5, 0.2, 0]]])
     crossing, touching = self_intersections(vertices, np.array([[0, 1, 2], [0, 3, 4]]))
-    assert crossing.size == touching.size == 0
-    vertices = np.vstack([vertices, vertices[:1]])
-    crossing, touching = self_intersections(vertices, np.array([[0, 1, 2], [5, 3, 4]]))
+    assert crossing.tolist() == [[0, 1]] and touching.size == 0
+    copied = np.vstack([vertices, vertices[:1]])
+    crossing, touching = self_intersections(copied, np.array([[0, 1, 2], [5, 3, 4]]))
     assert crossing.size == 0 and touching.tolist() == [[0, 1]]
+    # A fold through the shared vertex, out of the plane, crosses too; neighbours that only meet
+    # at their shared vertex, or along their shared edge, do not.
+    fold = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.4, 0.4, 1], [0.4, 0.4, -1], [-1, -1, 0.5], [1, 1, 0]], float)
+    assert self_intersections(fold, np.array([[0, 1, 2], [0, 3, 4]]))[0].tolist() == [[0, 1]]
+    assert self_intersections(fold, np.array([[0, 1, 2], [0, 5, 3]]))[0].size == 0
+    assert self_intersections(fold, np.array([[0, 1, 2], [1, 6, 2]]))[0].size == 0
+    # Two triangles on one edge folded flat onto each other cross.
+    flat = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 0]], float)
+    assert self_intersections(flat, np.array([[0, 1, 2], [1, 0, 3]]))[0].tolist() == [[0, 1]]
 
 
 @pytest.mark.parametrize("seed", range(10))

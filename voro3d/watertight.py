@@ -120,8 +120,10 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray, *,
 
     The compiled extension (``voro3d._cgal.self_intersecting_pairs``) finds the pairs whose
     bounding boxes meet and tests them with CGAL's exact predicates: closed triangles, so
-    touching counts; a triangle with collinear corners counts as its segment. Pairs that share a
-    vertex index (neighbours) are not tested. Pairs that share a vertex *position* under
+    touching counts; a triangle with collinear corners counts as its segment. Pairs that share
+    vertex indices (neighbours) cross when they meet beyond the corners they share (a fold
+    through a shared vertex, or two triangles on one edge folded flat onto each other). Pairs
+    that share no index but a vertex *position* under
     different indices (sheets of a non-manifold solid touching at a duplicated vertex) are
     returned apart, as touching.
 
@@ -154,6 +156,9 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray, *,
     a = vertices[triangles[pairs[:, 0]]]
     b = vertices[triangles[pairs[:, 1]]]
     shared_position = (a[:, :, None, :] == b[:, None, :, :]).all(axis=3).any(axis=(1, 2))
-    return pairs[~shared_position], pairs[shared_position]
+    # Neighbours by index were tested beyond their shared corners: theirs is a crossing.
+    neighbours = (triangles[pairs[:, 0]][:, :, None] == triangles[pairs[:, 1]][:, None, :]).any(axis=(1, 2))
+    touching = shared_position & ~neighbours
+    return pairs[~touching], pairs[touching]
 
 

@@ -43,9 +43,9 @@ def colored_mesh(mesh, points: np.ndarray, colors: np.ndarray):
     # Each split adds about three vertices per old one (a closed mesh has half as many vertices as faces).
     splits = int(np.clip(np.ceil(np.log(max(points.shape[0] / vertices, 1.0)) / np.log(4.0)), 0, MAX_COLOUR_SPLITS))
     split = mesh.subdivide_midpoint(number_of_iterations=splits) if splits else o3d.geometry.TriangleMesh(mesh)
-    # Triangles that fold back across a shared vertex are never tested against each other (the exact
-    # check skips neighbours); split, their pieces are, and cross (3 of 12 dev meshes at 20k points):
-    # then fewer splits, down to none.
+    # A split moves no surface, but its midpoints are rounded: where that makes pieces cross (or the
+    # mesh held a fold, which the exact check once let through between neighbours: 3 of 12 dev
+    # meshes at 20k points), fewer splits, down to none.
     while splits and len(self_intersections(np.asarray(split.vertices), np.asarray(split.triangles))[0]):
         splits -= 1
         split = mesh.subdivide_midpoint(number_of_iterations=splits) if splits else o3d.geometry.TriangleMesh(mesh)
