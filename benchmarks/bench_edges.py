@@ -17,12 +17,12 @@ Writes ``benchmarks/results/edges.{md,json}``.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+from bench_pointcloud import dev_parser, dev_shapes
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV = ROOT.parent / "shared" / "data" / "dev"
@@ -43,8 +43,8 @@ def edge_samples(mesh, frame) -> np.ndarray:
     vertices, triangles = mesh_arrays(mesh)
     points, normals = sample_surface((frame.apply(vertices), triangles), EDGE_SAMPLES, seed=7)
     distance, neighbour = cKDTree(points).query(points, k=16, distance_upper_bound=EDGE_RADIUS, workers=-1)
-    found = np.isfinite(distance)
-    neighbour[~found] = np.arange(len(points))[np.nonzero(~found)[0]]  # a missing neighbour is the sample itself
+    # A missing neighbour (beyond the radius) is the sample itself, which turns by nothing.
+    neighbour = np.where(np.isfinite(distance), neighbour, np.arange(len(points))[:, None])
     turn = np.einsum("ij,ikj->ik", normals, normals[neighbour])
     return points[(turn < np.cos(np.radians(EDGE_ANGLE))).any(axis=1)]
 
@@ -62,10 +62,9 @@ def edge_fscore(found: np.ndarray, truth: np.ndarray) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--shapes", nargs="*", help="file names in ../shared/data/dev (default: every abc_* and cad_*)")
+    cad = sorted(p.name for p in DEV.iterdir() if p.name.startswith(("abc_", "cad_"))) if DEV.is_dir() else ["cad_fandisk.obj"]
+    parser = dev_parser(__doc__, cad, OUT)
     parser.add_argument("--points", type=int, default=200_000)
-    parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
     import open3d as o3d
 
@@ -73,9 +72,8 @@ def main() -> None:
     from voro3d.frames import ndc_frame
     from voro3d.sampling import sample_surface
 
-    names = args.shapes or sorted(p.name for p in DEV.iterdir() if p.name.startswith(("abc_", "cad_")))
     rows = []
-    for name in names:
+    for name in dev_shapes(args.shapes, DEV):
         mesh = voro3d.load_mesh(DEV / name)
         frame = ndc_frame(mesh)
         truth = edge_samples(mesh, frame)

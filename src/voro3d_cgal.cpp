@@ -242,8 +242,9 @@ struct BoxSplit {
 }  // namespace
 
 // Pairs (i < j) of triangles that cross, decided exactly: their closed point sets intersect, or,
-// for neighbours sharing corners by index, they meet beyond those corners (neighbours_cross). Candidates are the pairs whose bounding boxes meet (CGAL's box intersection,
-// Zomorodian and Edelsbrunner), so the cost follows the number of nearby pairs, not its square.
+// for neighbours sharing corners by index, they meet beyond those corners (neighbours_cross).
+// Candidates are the pairs whose bounding boxes meet (CGAL's box intersection, Zomorodian and
+// Edelsbrunner), so the cost follows the number of nearby pairs, not its square.
 // With `changed`, a (t,) bool mask, only the pairs with at least one changed triangle are tested.
 // With `parallel`, from kParallelBoxes triangles on, the work is split over two threads (see
 // BoxSplit); the pairs are sorted, so the answer is the serial one.

@@ -78,7 +78,6 @@ def within(field, limit, step: float) -> np.ndarray:
     return field
 
 
-
 def supported_pieces(vertices, triangles, points, *, min_support: int = MIN_SUPPORT):
     """Which connected pieces of a mesh the points support.
 

@@ -4,10 +4,11 @@ Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of
 empty, and noise pulls generators off the surface. So the VoroLoss fit sees dense samples (as
 many as a mesh fit gets) of a target surface that the points define: screened Poisson for
 points that enclose a volume (:mod:`voro3d.pointcloud.poisson`), a robust IMLS field with the
-winding number of the points behind it for open, one-sided scans, held within a shell's depth of
-the points where they do not enclose it (:mod:`voro3d.pointcloud.surface`), or, for walls sampled on both sides closer than the point
-spacing (where both make a lumpy solid), a shell at a small distance around the points
-(:func:`~voro3d.pointcloud.surface.sheet_surface`); the same target labels the cells.
+winding number of the points behind it for open, one-sided scans, held within a shell's depth
+of the points where they do not enclose it (:mod:`voro3d.pointcloud.surface`), or, for walls
+sampled on both sides closer than the point spacing (where both make a lumpy solid), a shell at
+a small distance around the points (:func:`~voro3d.pointcloud.surface.sheet_surface`); the same
+target labels the cells.
 :func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
 (:func:`voro3d.snapping.snap_to_surface`).
 """
