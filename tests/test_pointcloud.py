@@ -313,6 +313,29 @@ def test_poisson_depth_follows_the_grid():
     assert [poisson_depth(g) for g in (8, 32, 64, 128, 512)] == [6, 7, 8, 9, 10]
 
 
+def test_poisson_depth_goes_finer_only_where_the_points_are_dense():
+    # 100k points of a bunny read a fit-frame spacing of about 0.0065, 1M about 0.002.
+    assert poisson_depth(64, 0.0065) == poisson_depth(64) == 8
+    assert poisson_depth(64, 0.03) == 8
+    assert poisson_depth(64, 0.002) == 9
+    assert poisson_depth(64, 1e-5) == 10
+
+
+def test_node_distance_matches_a_query_of_every_node():
+    from scipy.spatial import cKDTree
+
+    from voro3d.pointcloud.fields import node_distance
+    from voro3d.sampling import grid_nodes
+
+    points = np.random.default_rng(3).uniform(-0.6, 0.9, (400, 3))
+    tree = cKDTree(points)
+    distance, nearest = node_distance(tree, 33, 0.2)
+    expected, index = tree.query(grid_nodes(33), distance_upper_bound=0.2)
+    assert np.isfinite(distance).sum() == np.isfinite(expected).sum() > 0
+    np.testing.assert_array_equal(distance.ravel(), expected)
+    np.testing.assert_array_equal(nearest.ravel(), index)
+
+
 def _noisy_cloud(name: str, n: int):
     """An example mesh and ``n`` points sampled from it with 1% of its diagonal of Gaussian noise."""
     mesh = example_mesh(name)

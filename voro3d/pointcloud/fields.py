@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "depth_limit", "mesh_field", "supported_pieces", "within"]
+__all__ = ["GridSurface", "depth_limit", "mesh_field", "node_distance", "supported_pieces", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
@@ -49,18 +49,58 @@ class GridSurface:
         return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
 
 
-def depth_limit(tree, resolution: int, depth: float) -> np.ndarray:
-    """Distance from each node to the nearest point minus ``depth``, blurred by a Gaussian of one
-    node so that the union of balls does not show on the far side of the shell."""
+def node_distance(tree, resolution: int, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """Distance from each node of a ``resolution^3`` grid over ``[-1, 1]^3`` to the nearest point,
+    where it is under ``reach``.
+
+    Only nodes near an occupied voxel are queried: on a 62^3 grid around a 9k-point range scan
+    the kd-tree query of every node took 0.5 s, most of it on nodes far from all points.
+
+    Parameters
+    ----------
+    tree : scipy.spatial.cKDTree
+        Of the points, fit frame.
+    resolution : int
+    reach : float
+        Fit-frame units.
+
+    Returns
+    -------
+    distance : (r, r, r) float64
+        ``inf`` at or beyond ``reach``.
+    nearest : (r, r, r) int64
+        The nearest point's index, ``tree.n`` where the distance is ``inf``.
+    """
     from scipy import ndimage
 
     from ..geometry import grid_voxel
-    from ..sampling import grid_nodes
+
+    step = grid_voxel(resolution)
+    voxel = np.clip(np.rint((tree.data + 1.0) / step).astype(np.int64), 0, resolution - 1)
+    occupied = np.zeros((resolution,) * 3, bool)
+    occupied[tuple(voxel.T)] = True
+    # A node within reach of a point is within this many nodes of the point's own node per axis.
+    radius = int(np.ceil(reach / step)) + 1
+    candidates = np.flatnonzero(ndimage.maximum_filter(occupied, size=2 * radius + 1, mode="constant"))
+    distance = np.full(resolution**3, np.inf)
+    nearest = np.full(resolution**3, tree.n, np.int64)
+    if candidates.size:
+        axis = np.linspace(-1.0, 1.0, resolution)
+        nodes = np.stack([axis[i] for i in np.unravel_index(candidates, (resolution,) * 3)], axis=1)
+        distance[candidates], nearest[candidates] = tree.query(nodes, distance_upper_bound=reach, workers=-1)
+    return distance.reshape((resolution,) * 3), nearest.reshape((resolution,) * 3)
+
+
+def depth_limit(distance, resolution: int, depth: float) -> np.ndarray:
+    """Distance to the nearest point (:func:`node_distance`, reaching at least ``depth`` and four
+    nodes further) minus ``depth``, blurred by a Gaussian of one node so that the union of balls
+    does not show on the far side of the shell."""
+    from scipy import ndimage
+
+    from ..geometry import grid_voxel
 
     far = depth + 4.0 * grid_voxel(resolution)  # the blur's reach: beyond it only the side matters
-    distance, _ = tree.query(grid_nodes(resolution), distance_upper_bound=far, workers=-1)
-    distance = np.minimum(distance, far).reshape((resolution,) * 3)
-    return ndimage.gaussian_filter(distance, 1.0, mode="nearest") - depth
+    return ndimage.gaussian_filter(np.minimum(distance, far), 1.0, mode="nearest") - depth
 
 
 def within(field, limit, step: float) -> np.ndarray:

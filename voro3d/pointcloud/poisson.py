@@ -20,6 +20,7 @@ import numpy as np
 
 from .denoise import bilateral_filter
 from .fields import supported_pieces
+from .tuning import TARGET_CELL_SPACINGS
 
 __all__ = ["PoissonSurface", "poisson_surface", "poisson_depth"]
 
@@ -28,9 +29,13 @@ __all__ = ["PoissonSurface", "poisson_surface", "poisson_depth"]
 MIN_DEPTH, MAX_DEPTH = 6, 10
 
 
-def poisson_depth(grid: int) -> int:
-    """Octree depth whose resolution is at least four times ``grid``, within ``[6, 10]``."""
-    return int(np.clip(np.ceil(np.log2(4 * grid)), MIN_DEPTH, MAX_DEPTH))
+def poisson_depth(grid: int, spacing: float | None = None) -> int:
+    """Octree depth: a resolution of at least four times ``grid``, and finer while the cells stay
+    ``TARGET_CELL_SPACINGS`` median point ``spacing`` (fit frame) wide; within ``[6, 10]``."""
+    depth = np.ceil(np.log2(4 * grid))
+    if spacing is not None:
+        depth = max(depth, np.floor(np.log2(2.0 / (TARGET_CELL_SPACINGS * spacing))))
+    return int(np.clip(depth, MIN_DEPTH, MAX_DEPTH))
 
 
 @dataclass

@@ -341,7 +341,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
             value, gradient, _ = imls(framed, gradient, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
-    depth = poisson_depth(target_grid)
+    depth = poisson_depth(target_grid, stats.median_spacing)
     resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
     filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
     kind, target = _target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,

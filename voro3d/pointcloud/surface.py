@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fields import MIN_SUPPORT, GridSurface, depth_limit, mesh_field, within
+from .fields import MIN_SUPPORT, GridSurface, depth_limit, mesh_field, node_distance, within
 
 __all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "target_surface",
            "winding_level"]
@@ -166,7 +166,8 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
 
     from ..geometry import grid_voxel
 
-    limit = depth_limit(cKDTree(points), resolution, offset)
+    distance, _ = node_distance(cKDTree(points), resolution, offset + 4.0 * grid_voxel(resolution))
+    limit = depth_limit(distance, resolution, offset)
     field = within(limit.copy(), limit, grid_voxel(resolution))
     supported, vertices, triangles = mesh_field(field, points, MIN_SUPPORT)
     return SheetSurface(supported, vertices, triangles, float(offset))
@@ -273,9 +274,10 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     step = grid_voxel(resolution)
     nodes = grid_nodes(resolution)
     tree = cKDTree(points)
-    # The band: nodes within IMLS_BAND kernel widths of their nearest point.
-    reach = IMLS_BAND * float(widths.max())
-    distance, nearest = tree.query(nodes, distance_upper_bound=reach + step, workers=-1)
+    # One query for the band (nodes within IMLS_BAND kernel widths of their nearest point) and
+    # the depth limit (which reads four nodes beyond the depth).
+    reach = max(IMLS_BAND * float(widths.max()), 0.0 if depth is None else depth + 4.0 * step) + step
+    distance, nearest = (a.ravel() for a in node_distance(tree, resolution, reach))
     near = np.isfinite(distance)
     near[near] = distance[near] <= IMLS_BAND * widths[nearest[near]]
     field = np.empty(nodes.shape[0])
@@ -299,7 +301,7 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     field = field.reshape((resolution,) * 3)
     limit = None
     if depth is not None:
-        limit = depth_limit(tree, resolution, depth)
+        limit = depth_limit(distance.reshape(field.shape), resolution, depth)
         field = within(field, limit, step)
     supported, vertices, triangles = mesh_field(field, points, min_support)
     return TargetSurface(supported, vertices, triangles, points, normals, widths,

@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "SHELL_DEPTH", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "SHELL_DEPTH", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE",
            "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS"]
 
@@ -50,9 +50,16 @@ AUTO_GRID_RANGE = (32, 128)
 # finest voxels (rms) from a plane.
 COARSEST_GRID = 32
 BAND_TOLERANCE = 0.05
-# The target surface's resolution follows the grid up to this one: Poisson at depth 9 (grid 128)
-# took 64 s of a 1M-point reconstruct where depth 8 takes 5 s.
+# The target surface's resolution follows the grid up to this one (Poisson depth 8), finer only
+# for dense points (TARGET_CELL_SPACINGS).
 MAX_TARGET_GRID = 64
+# The Poisson target goes finer than MAX_TARGET_GRID asks while its octree cells stay this many
+# median spacings wide (pointcloud.poisson.poisson_depth): dense clouds hold the detail. 1M oriented
+# points of 4 dev meshes (bench_large, depth 9 instead of 8): CD bunny 0.595 -> 0.589, fandisk 0.666
+# -> 0.664, abc_00000005 0.635 -> 0.629 (Poisson depth 9 alone: 0.591, 0.665, 0.630), armadillo
+# 0.463 both; 33-40 s instead of 18-28 s. At 100k points depth 9 gained nothing (CD -0.2% to
+# +0.6%, 1.2-2 s more), and this keeps them at 8: cells 1.2 spacings wide at depth 9.
+TARGET_CELL_SPACINGS = 1.5
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
 # Clean points closer than this share of a voxel are dense: exact samples themselves, and their
