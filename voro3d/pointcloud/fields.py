@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "depth_limit", "mesh_field", "node_distance", "supported_pieces", "within"]
+__all__ = ["GridSurface", "depth_limit", "limit_reach", "mesh_field", "node_distance", "supported_pieces", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
@@ -74,6 +74,7 @@ def node_distance(tree, resolution: int, reach: float) -> tuple[np.ndarray, np.n
     from scipy import ndimage
 
     from ..geometry import grid_voxel
+    from ..sampling import grid_nodes
 
     step = grid_voxel(resolution)
     voxel = np.clip(np.rint((tree.data + 1.0) / step).astype(np.int64), 0, resolution - 1)
@@ -85,22 +86,26 @@ def node_distance(tree, resolution: int, reach: float) -> tuple[np.ndarray, np.n
     distance = np.full(resolution**3, np.inf)
     nearest = np.full(resolution**3, tree.n, np.int64)
     if candidates.size:
-        axis = np.linspace(-1.0, 1.0, resolution)
-        nodes = np.stack([axis[i] for i in np.unravel_index(candidates, (resolution,) * 3)], axis=1)
-        distance[candidates], nearest[candidates] = tree.query(nodes, distance_upper_bound=reach, workers=-1)
+        distance[candidates], nearest[candidates] = tree.query(grid_nodes(resolution)[candidates],
+                                                               distance_upper_bound=reach, workers=-1)
     return distance.reshape((resolution,) * 3), nearest.reshape((resolution,) * 3)
 
 
-def depth_limit(distance, resolution: int, depth: float) -> np.ndarray:
-    """Distance to the nearest point (:func:`node_distance`, reaching at least ``depth`` and four
-    nodes further) minus ``depth``, blurred by a Gaussian of one node so that the union of balls
-    does not show on the far side of the shell."""
-    from scipy import ndimage
-
+def limit_reach(resolution: int, depth: float) -> float:
+    """How far :func:`depth_limit` reads the distance to the points: ``depth`` and the blur's reach
+    of four nodes, beyond which only the side matters (fit-frame units)."""
     from ..geometry import grid_voxel
 
-    far = depth + 4.0 * grid_voxel(resolution)  # the blur's reach: beyond it only the side matters
-    return ndimage.gaussian_filter(np.minimum(distance, far), 1.0, mode="nearest") - depth
+    return depth + 4.0 * grid_voxel(resolution)
+
+
+def depth_limit(distance, resolution: int, depth: float) -> np.ndarray:
+    """Distance to the nearest point (:func:`node_distance`, reaching at least
+    :func:`limit_reach`) minus ``depth``, blurred by a Gaussian of one node so that the union of
+    balls does not show on the far side of the shell."""
+    from scipy import ndimage
+
+    return ndimage.gaussian_filter(np.minimum(distance, limit_reach(resolution, depth)), 1.0, mode="nearest") - depth
 
 
 def within(field, limit, step: float) -> np.ndarray:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fields import MIN_SUPPORT, GridSurface, depth_limit, mesh_field, node_distance, within
+from .fields import MIN_SUPPORT, GridSurface, depth_limit, limit_reach, mesh_field, node_distance, within
 
 __all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "target_surface",
            "winding_level"]
@@ -166,7 +166,7 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
 
     from ..geometry import grid_voxel
 
-    distance, _ = node_distance(cKDTree(points), resolution, offset + 4.0 * grid_voxel(resolution))
+    distance, _ = node_distance(cKDTree(points), resolution, limit_reach(resolution, offset))
     limit = depth_limit(distance, resolution, offset)
     field = within(limit.copy(), limit, grid_voxel(resolution))
     supported, vertices, triangles = mesh_field(field, points, MIN_SUPPORT)
@@ -275,8 +275,8 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     nodes = grid_nodes(resolution)
     tree = cKDTree(points)
     # One query for the band (nodes within IMLS_BAND kernel widths of their nearest point) and
-    # the depth limit (which reads four nodes beyond the depth).
-    reach = max(IMLS_BAND * float(widths.max()), 0.0 if depth is None else depth + 4.0 * step) + step
+    # the depth limit.
+    reach = max(IMLS_BAND * float(widths.max()), 0.0 if depth is None else limit_reach(resolution, depth)) + step
     distance, nearest = (a.ravel() for a in node_distance(tree, resolution, reach))
     near = np.isfinite(distance)
     near[near] = distance[near] <= IMLS_BAND * widths[nearest[near]]
