@@ -580,6 +580,8 @@ def main():
                         "offset = diagonal / 600), compiled from benchmarks/alpha_wrap.cpp")
     parser.add_argument("--shell-depth", help="SHELL_DEPTH for this run (fit-frame units, or none: no limit), the "
                         "ablation beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--bridge-gap", type=float, help="MAX_BRIDGE_GAP for this run (fit-frame units; 0: no "
+                        "bridges), the ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
                         "(later files win; a row without Poisson keeps the earlier file's Poisson)")
@@ -593,6 +595,10 @@ def main():
         import voro3d.pointcloud.reconstruct as reconstruct_module
 
         reconstruct_module.SHELL_DEPTH = None if args.shell_depth == "none" else float(args.shell_depth)
+    if args.bridge_gap is not None:
+        import voro3d.pointcloud.surface as surface_module
+
+        surface_module.MAX_BRIDGE_GAP = args.bridge_gap
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -601,7 +607,8 @@ def main():
     args.out.parent.mkdir(parents=True, exist_ok=True)
     load = lambda: " ".join(Path("/proc/loadavg").read_text().split()[:3])  # noqa: E731
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=f"{platform.machine()}, {multiprocessing.cpu_count()} cores",
-                load_before=load(), grid=args.grid, shell_depth=args.shell_depth or "default")
+                load_before=load(), grid=args.grid, shell_depth=args.shell_depth or "default",
+                bridge_gap="default" if args.bridge_gap is None else args.bridge_gap)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]

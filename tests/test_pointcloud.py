@@ -336,6 +336,38 @@ def test_node_distance_matches_a_query_of_every_node():
     np.testing.assert_array_equal(nearest.ravel(), index)
 
 
+def _two_balls(gap: float, small: int = 500):
+    """A 41^3 field of two balls of radius 0.3 ``gap`` apart along x, and points on them (``small``
+    on the second)."""
+    from voro3d.sampling import grid_nodes
+
+    nodes = grid_nodes(41)
+    centres = np.array([[-0.3 - gap / 2, 0, 0], [0.3 + gap / 2, 0, 0]])
+    field = np.min(np.linalg.norm(nodes[:, None] - centres[None], axis=2), axis=1).reshape((41,) * 3) - 0.3
+    directions = np.random.default_rng(0).normal(size=(500 + small, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    return field, 0.3 * directions + np.repeat(centres, [500, small], axis=0)
+
+
+def test_bridge_joins_the_pieces_the_points_support_across_small_gaps_only():
+    from scipy import ndimage
+
+    from voro3d.pointcloud.fields import bridge
+
+    field, points = _two_balls(0.3)
+    joined = bridge(field, points, 0.4)
+    assert ndimage.label(joined < 0)[1] == 1
+    # Only a rod between them: the balls' surfaces are untouched away from it.
+    far = np.zeros(field.shape, bool)
+    far[:, :, :14] = True
+    near_surface = far & (np.abs(field) < 0.1)
+    assert near_surface.sum() > 50 and np.array_equal(joined[near_surface], field[near_surface])
+    assert np.array_equal(joined[far] < 0, field[far] < 0)
+    assert bridge(field, points, 0.2) is field  # further apart than max_gap: two objects
+    field, points = _two_balls(0.3, small=4)  # a ball four points support is debris, not bridged
+    assert bridge(field, points, 0.4) is field
+
+
 def _noisy_cloud(name: str, n: int):
     """An example mesh and ``n`` points sampled from it with 1% of its diagonal of Gaussian noise."""
     mesh = example_mesh(name)

@@ -66,7 +66,9 @@ the points define (``voro3d/pointcloud/``):
      0.75-1.5 local spacings and 4 noise deviations) near the points and the smoothed winding
      number away from them, at the level that puts the solid behind the scanned side, held
      within ``SHELL_DEPTH`` (6% of the diagonal) of the points where they do not enclose it (a
-     shell under the seen side instead of a block out to the box; ``fields.py``), sampled on a
+     shell under the seen side instead of a block out to the box; ``fields.py``), its pieces
+     less than ``MAX_BRIDGE_GAP`` apart (what one viewpoint sees apart) joined by thin rods
+     (``fields.bridge``; also the shell below), sampled on a
      grid twice as fine as the VoroMesh grid and meshed by Marching Cubes, debris removed as
      above (and stray cells after the fit, ``debris.py``).
    - *Walls thinner than the spacing, sampled on both sides* (a lid, a shell): the normals of

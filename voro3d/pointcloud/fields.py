@@ -11,12 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "depth_limit", "limit_reach", "mesh_field", "node_distance", "supported_pieces", "within"]
+__all__ = ["GridSurface", "bridge", "depth_limit", "limit_reach", "mesh_field", "node_distance", "supported_pieces", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
 SUPPORT_SHARE = 0.01
 MIN_SUPPORT = 20
+# The radius of a rod that bridges two pieces (bridge), as a share of the gap it spans (a thin rod
+# over what was not seen; not ablated: bridges are rare, tuning.MAX_BRIDGE_GAP).
+BRIDGE_WIDTH = 0.15
 
 
 @dataclass
@@ -106,6 +109,93 @@ def depth_limit(distance, resolution: int, depth: float) -> np.ndarray:
     from scipy import ndimage
 
     return ndimage.gaussian_filter(np.minimum(distance, limit_reach(resolution, depth)), 1.0, mode="nearest") - depth
+
+
+def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> np.ndarray:
+    """``field`` with the pieces of its solid that the points support joined across gaps of up to
+    ``max_gap``: what a one-sided scan sees apart (a cow's head, body and a leg, seen from behind)
+    is one object.
+
+    The pieces are the connected negative regions; a point supports the region of the inside
+    corner of its grid cell and, as in :func:`supported_pieces`, a piece with fewer than
+    ``min_support`` points or ``SUPPORT_SHARE`` of the best-supported one's is left alone. They
+    are joined along the minimum spanning tree of their gaps, each by a round rod between the
+    nearest nodes of the two pieces (found with one distance transform: pieces whose nearest-node
+    regions touch are neighbours), ``BRIDGE_WIDTH`` times the gap thick and at least three nodes
+    in radius, so that the VoroMesh grid (half as fine) keeps it.
+
+    Parameters
+    ----------
+    field : (r, r, r) float64
+        Signed, negative inside, in fit-frame units near its zero set.
+    points : (n, 3) float64
+        Fit frame.
+    max_gap : float
+        Fit-frame units; pieces further apart stay apart (separate objects).
+
+    Returns
+    -------
+    (r, r, r) float64
+        ``field`` itself when nothing is joined.
+    """
+    from scipy import ndimage
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import minimum_spanning_tree
+
+    original = field
+    resolution = field.shape[0]
+    labels, count = ndimage.label(field < 0)
+    if count <= 1:
+        return field
+    corner = np.clip(np.floor((points + 1.0) * (0.5 * (resolution - 1))).astype(np.int64), 0, resolution - 2)
+    label = np.zeros(len(points), np.int64)
+    for offset in np.ndindex(2, 2, 2):
+        label = np.maximum(label, labels[tuple((corner + offset).T)])
+    support = np.bincount(label, minlength=count + 1)
+    support[0] = 0
+    supported = support >= max(min_support, SUPPORT_SHARE * support.max())
+    if supported.sum() <= 1:
+        return field
+    step = 2.0 / (resolution - 1)
+    gap, nearest = ndimage.distance_transform_edt(~supported[labels], return_indices=True)
+    nearest = np.ravel_multi_index(tuple(nearest), labels.shape)
+    owner = labels.ravel()[nearest]
+    gap *= step
+    # Neighbouring nodes nearest to different pieces: a path between the pieces' nearest nodes.
+    ends = []
+    for axis in range(3):
+        low = tuple(slice(0, -1) if a == axis else slice(None) for a in range(3))
+        high = tuple(slice(1, None) if a == axis else slice(None) for a in range(3))
+        index = np.nonzero(owner[low] != owner[high])
+        shifted = tuple(k + (a == axis) for a, k in enumerate(index))
+        ends.append(np.stack([np.ravel_multi_index(index, labels.shape), np.ravel_multi_index(shifted, labels.shape)], 1))
+    ends = np.concatenate(ends)
+    if not len(ends):
+        return field
+    length = gap.ravel()[ends].sum(axis=1) + step
+    pair = np.sort(owner.ravel()[ends], axis=1)
+    # The shortest path of each pair of pieces: the first of the pair once sorted by length.
+    order = np.argsort(length, kind="stable")
+    _, first = np.unique(pair[order, 0] * (count + 1) + pair[order, 1], return_index=True)
+    best = order[first]
+    tree = minimum_spanning_tree(coo_matrix((length[best], tuple(pair[best].T)), shape=(count + 1,) * 2)).tocoo()
+    path = dict(zip(map(tuple, pair[best]), best))
+    for a, b, span in zip(tree.row, tree.col, tree.data):
+        if span > max_gap:
+            continue
+        k = path[(min(a, b), max(a, b))]
+        start, end = (np.array(np.unravel_index(nearest.ravel()[n], labels.shape)) for n in ends[k])
+        radius = max(BRIDGE_WIDTH * span, 3.0 * step) / step  # in nodes
+        low = np.maximum(np.floor(np.minimum(start, end) - radius - 1).astype(int), 0)
+        high = np.minimum(np.ceil(np.maximum(start, end) + radius + 2).astype(int), resolution)
+        box = tuple(slice(l, h) for l, h in zip(low, high))
+        nodes = np.stack(np.meshgrid(*(np.arange(l, h) for l, h in zip(low, high)), indexing="ij"), -1) - start
+        axis = (end - start).astype(np.float64)
+        along = np.clip(nodes @ axis / max(float(axis @ axis), 1e-12), 0.0, 1.0)
+        rod = (np.linalg.norm(nodes - along[..., None] * axis, axis=-1) - radius) * step
+        field = field.copy() if field is original else field
+        field[box] = np.minimum(field[box], rod)
+    return field
 
 
 def within(field, limit, step: float) -> np.ndarray:

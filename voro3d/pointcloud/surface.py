@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fields import MIN_SUPPORT, GridSurface, depth_limit, limit_reach, mesh_field, node_distance, within
+from .fields import MIN_SUPPORT, GridSurface, bridge, depth_limit, limit_reach, mesh_field, node_distance, within
+from .tuning import MAX_BRIDGE_GAP
 
 __all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "target_surface",
            "winding_level"]
@@ -169,6 +170,7 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     distance, _ = node_distance(cKDTree(points), resolution, limit_reach(resolution, offset))
     limit = depth_limit(distance, resolution, offset)
     field = within(limit.copy(), limit, grid_voxel(resolution))
+    field = bridge(field, points, MAX_BRIDGE_GAP)
     supported, vertices, triangles = mesh_field(field, points, MIN_SUPPORT)
     return SheetSurface(supported, vertices, triangles, float(offset))
 
@@ -303,6 +305,9 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     if depth is not None:
         limit = depth_limit(distance.reshape(field.shape), resolution, depth)
         field = within(field, limit, step)
+        # Patches one viewpoint sees apart are one object; the limit must not cut the bridges.
+        field = bridge(field, points, MAX_BRIDGE_GAP, min_support=min_support)
+        limit = np.minimum(limit, field)
     supported, vertices, triangles = mesh_field(field, points, min_support)
     return TargetSurface(supported, vertices, triangles, points, normals, widths,
                          removed=np.sign(supported) != np.sign(field), areas=areas, level=level, dense=dense,
