@@ -397,8 +397,11 @@ def _mean(rows, method, key):
 
 def write(out: Path, meta, rows, scans):
     out.with_suffix(".json").write_text(json.dumps(dict(meta=meta, rows=rows, scans=scans), indent=2))
-    lines = [f"# Point clouds as they come -> watertight meshes ({meta['date']}, {meta['machine']}, load average "
-             f"{meta['load_before']} before, {meta.get('load_after', '?')} after)", "",
+    # A merged file lists each run with its own loads (one run's before and another's after would mislead).
+    runs = _runs(meta)
+    loads = "; ".join(f"{run['date']}: load average {run['load_before']} before, {run['load_after']} after" for run in runs)
+    lines = [f"# Point clouds as they come -> watertight meshes ({meta['machine']}; "
+             f"{'merged runs, ' if len(runs) > 1 else ''}{loads})", "",
              f"Clouds without normals sampled from {len({r['shape'] for r in rows})} dev meshes. VoroMesh: "
              f"`voro3d.pointcloud.reconstruct_points(points, grid={meta['grid']})`, then `cloud_mesh`. Poisson: Open3D statistical "
              "outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation (30; after "
@@ -546,6 +549,12 @@ def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
         render_rows(scan_rows, out.parent / (out.name + "_scans.png"))
 
 
+def _runs(meta) -> list:
+    """The runs behind a result: a merged one's list, or the run itself."""
+    return meta.get("runs") or [dict(date=meta["date"], load_before=meta["load_before"],
+                                     load_after=meta.get("load_after", "?"))]
+
+
 def merge(sources, out: Path, folder: Path):
     runs = [json.loads(Path(source).read_text()) for source in sources]
     rows = {}
@@ -555,10 +564,12 @@ def merge(sources, out: Path, folder: Path):
             r = dict(r, poisson=rows[key]["poisson"])
         rows[key] = r
     scans = {s["scan"]: s for run in runs for s in run["scans"]}
-    # A merged file's date is already a list of runs: flatten it.
-    dates = " + ".join(dict.fromkeys(date for run in runs
-                                     for date in run["meta"]["date"].removeprefix("merged runs of ").split(" + ")))
-    meta = dict(runs[0]["meta"], date=f"merged runs of {dates}", load_after=runs[-1]["meta"].get("load_after", "?"))
+    # Each run keeps its date and loads; a merged file's own runs are flattened.
+    listed = {}
+    for run in runs:
+        for entry in _runs(run["meta"]):
+            listed.setdefault(entry["date"], entry)
+    meta = dict(runs[0]["meta"], runs=list(listed.values()))
     rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
     scans = [scans[k] for k in sorted(scans)]
     write(out, meta, rows, scans)

@@ -95,6 +95,19 @@ def test_a_far_clump_of_strays_is_removed(sphere_cloud):
     assert mask[len(points):].all() and not mask[:len(points)].any()
 
 
+def test_a_sparsely_sampled_part_of_the_surface_is_kept():
+    # radar.xyz-like: a sphere sampled 100 times more sparsely (by area) over a cap than elsewhere.
+    # Its sparse points are far from one another (the 8th neighbour 10 times the median), but each
+    # lies on the plane of its neighbours: surface, not outliers.
+    rng = np.random.default_rng(6)
+    points = rng.normal(size=(200_000, 3))
+    points /= np.linalg.norm(points, axis=1, keepdims=True)
+    cap = points[:, 0] > 0.5
+    points = points[~cap | (rng.random(len(points)) < 0.01)]
+    mask = outlier_mask(points)
+    assert not mask[points[:, 0] > 0.5].any() and mask.mean() < 0.001
+
+
 def test_noise_estimate_follows_the_noise(sphere_cloud):
     points, _ = sphere_cloud
     rng = np.random.default_rng(5)

@@ -19,8 +19,10 @@ the points define (``voro3d/pointcloud/``):
 
 1. **Clean** (``preprocess.py``): outliers out without flags: strays whose mean distance to 20
    neighbours is over twice their neighbours' (a local statistical filter, which keeps the sparse
-   end of a 20× density ramp), points in empty space (8th neighbour over 6× the median distance),
-   and far clumps holding under 1% of the points. Then the local spacing and the noise level
+   end of a 20× density ramp) and points in empty space (8th neighbour over 6× the median distance),
+   unless they lie on one plane with their neighbours (a part of the surface sampled far more
+   sparsely: a scanned sphere 100× denser in places keeps its sparse side); and clumps holding
+   under 1% of the points whose boxes lie apart from the rest. Then the local spacing and the noise level
    (median RMS distance of 24 neighbours to their plane) are measured. A cloud that fills a
    volume (local dimension above 2.45 *and* points × spacing³ over 0.5 of the box volume;
    sampled surfaces read about 2 and under 0.25) is refused: it has no surface.

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .tuning import STATISTICS_SAMPLE
+from .tuning import STATISTICS_SAMPLE, SUSPECT_FLATNESS, SUSPECT_OFFSET
 
 __all__ = ["CloudStats", "cloud_stats", "outlier_mask", "outlier_neighbours", "local_dimension", "fill_ratio", "merge_duplicates",
            "separate_objects"]
@@ -87,15 +87,8 @@ def separate_objects(points: np.ndarray, *, min_points: int, margin: float = 0.5
     n = points.shape[0]
     distance, neighbour = neighbour_table(cKDTree(points), min(SPACING_NEIGHBOURS + 1, n))
     piece = _pieces(distance, neighbour, np.ones(n, bool))
-    low = np.full((piece.max() + 1, 3), np.inf)
-    high = np.full((piece.max() + 1, 3), -np.inf)
-    np.minimum.at(low, piece, points)
-    np.maximum.at(high, piece, points)
-    grow = margin * np.linalg.norm(high - low, axis=1)[:, None]
-    low, high = low - grow, high + grow
-    overlap = np.all((low[:, None] <= high[None]) & (low[None] <= high[:, None]), axis=2)
-    _, group = connected_components(coo_matrix(overlap), directed=False)
-    group = group[piece]
+    low, high = _grown_boxes(points, piece, margin)
+    group = connected_components(coo_matrix(_overlap(low, high, low, high)), directed=False)[1][piece]
     members = sorted((np.flatnonzero(group == g) for g in np.unique(group)), key=len, reverse=True)
     if len(members[-1]) < min_points:
         return [np.arange(n)]
@@ -182,15 +175,14 @@ def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, s
                  neighbours=None) -> np.ndarray:
     """True for points that look like outliers rather than surface samples.
 
-    Three tests. A point whose mean distance to its ``STRAY_NEIGHBOURS`` neighbours is more
-    than ``stray_factor`` times theirs (the median) is a stray near the surface: a local version
+    Two tests find suspects. A point whose mean distance to its ``STRAY_NEIGHBOURS`` neighbours is
+    more than ``stray_factor`` times theirs (the median) is a stray near the surface: a local version
     of Open3D's statistical filter, which compares with the whole cloud's mean and so would cut
-    the sparse end of an unevenly sampled surface. A point whose 8th
-    neighbour is more than ``sparse_factor`` times the cloud's median distance away is in empty
-    space: a surface sampled 20 times more sparsely in one place than in another still has
-    its spacing within about 4 times the median there, while points scattered through the volume
-    are an order of magnitude further apart. Last, clumps of strays far from the rest
-    (:func:`_small_clusters`).
+    the sparse end of an unevenly sampled surface. A point whose 8th neighbour is more than
+    ``sparse_factor`` times the cloud's median distance away is in empty space, or on a part of the
+    surface sampled far more sparsely than the rest. A suspect that lies on the plane of its
+    neighbours, which lie on it too (:func:`_on_sheet`), is that sparse surface and stays: scattered
+    outliers have neither. Last, clumps far from the rest (:func:`_small_clusters`).
 
     Parameters
     ----------
@@ -204,11 +196,30 @@ def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, s
     """
     distance, neighbour = outlier_neighbours(points, tree=tree) if neighbours is None else neighbours
     spacing = distance[:, SPACING_NEIGHBOURS]
-    sparse = spacing > sparse_factor * np.median(spacing)
+    suspect = spacing > sparse_factor * np.median(spacing)
     mean = distance[:, 1:].mean(axis=1)
+    suspect |= mean > stray_factor * _neighbour_median(mean, neighbour[:, 1:])
+    index = np.flatnonzero(suspect)
+    suspect[index[_on_sheet(points, neighbour[index])]] = False
     distance = distance[:, :SPACING_NEIGHBOURS + 1].copy()  # all _small_clusters needs
-    stray = mean > stray_factor * _neighbour_median(mean, neighbour[:, 1:])
-    return sparse | stray | _small_clusters(distance, neighbour[:, :SPACING_NEIGHBOURS + 1], ~(sparse | stray))
+    return suspect | _small_clusters(points, distance, neighbour[:, :SPACING_NEIGHBOURS + 1], ~suspect)
+
+
+def _on_sheet(points, neighbourhood, block: int = 2**16) -> np.ndarray:
+    """(m,) bool: the ``neighbourhood`` rows (m, k) of point indices, each point first, whose points
+    lie within ``SUSPECT_FLATNESS`` of their in-plane spread (RMS) from their best-fit plane, and
+    the first point within ``SUSPECT_OFFSET`` of it."""
+    flat = []
+    for start in range(0, len(neighbourhood), block):
+        around = points[neighbourhood[start:start + block]]
+        centre = around.mean(axis=1)
+        local = around - centre[:, None]
+        value, vector = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local) / around.shape[1])
+        spread = np.sqrt(value[:, 2])
+        offset = np.abs(np.einsum("ni,ni->n", local[:, 0], vector[:, :, 0]))
+        flat.append((np.sqrt(np.maximum(value[:, 0], 0.0)) < SUSPECT_FLATNESS * spread)
+                    & (offset < SUSPECT_OFFSET * spread))
+    return np.concatenate(flat) if flat else np.zeros(0, bool)
 
 
 def outlier_neighbours(points: np.ndarray, *, tree=None) -> tuple[np.ndarray, np.ndarray]:
@@ -223,13 +234,24 @@ def outlier_neighbours(points: np.ndarray, *, tree=None) -> tuple[np.ndarray, np
     return neighbour_table(tree, min(STRAY_NEIGHBOURS + 1, points.shape[0]))
 
 
-def _small_clusters(distance, neighbour, candidate, *, reach: float = 4.0, share: float = 0.01):
-    """Points in groups, apart from the rest, of fewer than ``share`` of the points: the
-    neighbour graph joins points within ``reach`` median 8th-neighbour distances; a far-off
-    clump of strays is a small piece of it, a second object a large one."""
-    piece = _pieces(distance, neighbour, candidate, reach=reach)
-    size = np.bincount(piece[candidate], minlength=piece.max() + 1)
-    return candidate & (size[piece] < max(share * candidate.sum(), 10))
+def _small_clusters(points, distance, neighbour, candidate, *, share: float = 0.01, block: int = 2**14):
+    """``candidate`` points in small pieces (:func:`_pieces`; fewer than ``share`` of them) that lie
+    apart from every large piece, as :func:`separate_objects` tells objects apart (grown bounding
+    boxes that do not overlap): far-off clumps of strays. A sparsely sampled part of the surface
+    falls into small pieces too, but among the rest, and stays."""
+    index = np.flatnonzero(candidate)
+    piece = np.unique(_pieces(distance, neighbour, candidate)[index], return_inverse=True)[1].reshape(-1)
+    size = np.bincount(piece)
+    small = size < max(share * len(index), 10)
+    low, high = _grown_boxes(points[index], piece)
+    apart = np.zeros(len(size), bool)
+    few = np.flatnonzero(small)
+    for start in range(0, len(few), block):  # (block, large pieces, 3) at a time: a million singletons fit
+        rows = few[start:start + block]
+        apart[rows] = ~_overlap(low[rows], high[rows], low[~small], high[~small]).any(axis=1)
+    clump = np.zeros(len(candidate), bool)
+    clump[index] = apart[piece]
+    return clump
 
 
 def _pieces(distance, neighbour, candidate, *, reach: float = 4.0) -> np.ndarray:
@@ -244,6 +266,21 @@ def _pieces(distance, neighbour, candidate, *, reach: float = 4.0) -> np.ndarray
     near = (distance[:, 1:].reshape(-1) <= reach * np.median(distance[:, -1])) & candidate[rows] & candidate[cols]
     return connected_components(coo_matrix((np.ones(int(near.sum())), (rows[near], cols[near])), shape=(n, n)),
                                 directed=False)[1]
+
+
+def _grown_boxes(points, piece, margin: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """(p, 3) low and high corners of each piece's bounding box, grown by ``margin`` of its diagonal."""
+    low = np.full((piece.max() + 1, 3), np.inf)
+    high = np.full((piece.max() + 1, 3), -np.inf)
+    np.minimum.at(low, piece, points)
+    np.maximum.at(high, piece, points)
+    grow = margin * np.linalg.norm(high - low, axis=1)[:, None]
+    return low - grow, high + grow
+
+
+def _overlap(low_a, high_a, low_b, high_b) -> np.ndarray:
+    """(a, b) bool: which boxes of the first set overlap which of the second."""
+    return np.all((low_a[:, None] <= high_b[None]) & (low_b[None] <= high_a[:, None]), axis=2)
 
 
 # A cloud is taken to fill a volume, rather than sample a surface, when both tests say so. The

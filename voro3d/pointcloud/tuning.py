@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS"]
 
@@ -42,7 +42,11 @@ NOISY = 0.13
 # +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 4-10% on three, hence the gate.
 HEAVY_NOISE = 0.85
 FILTER_WIDTH_PER_NOISE = 2.0
-# grid="auto": the finest voxels about this many median spacings wide, within these bounds.
+# grid="auto": the finest voxels about this many median spacings wide, within these bounds. The top
+# at 10^6 true-normal points (bench_large's clouds, reconstruct in its own process), 128 against 256:
+# armadillo CD 0.463 / 0.460, NC 0.978 / 0.983, 36 / 49 s (192: 0.460, 0.981, 44 s); bunny CD 0.589 /
+# 0.589, NC 0.989 / 0.991, 38 / 49 s; the CAD parts, flat where they are not sharp, lose at 256:
+# fandisk CD 0.664 / 0.668, abc_00000005 0.629 / 0.633 (Poisson depth 9: 0.667, 0.632), 29-34 / 32-35 s.
 AUTO_SPACINGS_PER_VOXEL = 2.5
 AUTO_GRID_RANGE = (32, 128)
 # grid="auto" fits an adaptive band (voro3d.generators.AdaptiveBand) from the finest grid up to
@@ -145,6 +149,20 @@ CLOUD_STEPS = 200
 # NC at worst -0.0008 on average, F1 within 0.0005; samples and fit 0.56-0.64x, the call 0.83-0.87x
 # the time. At 40: CD +0.5%, +3.2% at worst, NC -0.0019 on clean 100k, for 0.4x the fit.
 CLOUD_SAMPLES_PER_FACE = 75
+# A point the outlier tests suspect (preprocess.outlier_mask: sparse, or a stray) stays when it and its
+# 20 neighbours lie within SUSPECT_FLATNESS of their in-plane spread (RMS) of one plane, itself within
+# SUSPECT_OFFSET (the centre of a curved patch sits off the patch's plane by about twice its RMS): a
+# part of the surface sampled far more sparsely than the rest. Suspects kept, over the 12 benchmark
+# meshes, flatness 0.1 and offset 0.1 / 0.15 / 0.2: the uniform outliers of "outliers 2%" 0 / 1 / 1
+# of 10,359 (both at 0.15: 33); 1% noise 0 of 234; the dev scan radar.xyz (a sphere sampled 100
+# times more densely in places) 476 / 490 / 496 of 502; a unit sphere of 150k points with a cap
+# sampled 100 times more sparsely 420 / 487 / 487 of 487 (45k points, cap spacing 0.36 of the
+# radius: 47 / 101 / 115 of 149); 1-view range scans 38 / 41 / 45 of 100 (grazing silhouettes).
+# Mean distance from the scan points to the mesh, in diagonals, before -> after (with the clumps of
+# _small_clusters kept when among the rest): radar 2.99e-3 (1,147 points dropped, a side left open)
+# -> 1.26e-4 (12 dropped, closed; Poisson 6.06e-4), hippo2 8.96e-4 -> 5.43e-4 (Poisson 7.08e-4).
+SUSPECT_FLATNESS = 0.1
+SUSPECT_OFFSET = 0.15
 # Statistics of large clouds are medians or means over a random subset of this many points
 # (:func:`~voro3d.queries.knn_blocks`): the noise and fine noise (cloud_stats) and the local dimension
 # over STATISTICS_SAMPLE, the sign disagreement of given normals over SIGN_SAMPLE (16 pairs a point).
