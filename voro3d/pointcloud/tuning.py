@@ -82,6 +82,13 @@ STRAY_CELL_SHARE = 0.02
 # ones (their Poisson surface ran off, and the IMLS target then lacked the one-sided scans'
 # smoothing pass) against 35-3,400 and 4.5-1,270 with it.
 CLOSED_LEVEL = 0.25
+# Not settled: which target for clouds that read closed but were seen in part. Each target forced
+# (plan target), 12 dev meshes, grid 64, at 17c2436, mean CD / NC auto -- poisson -- imls: 3-view range
+# scans 71.3 / 0.869 -- 553.7 / 0.816 -- 48.8 / 0.863 (Poisson's CD lower on 0 of 12; the auto
+# rule sends 5 to it, homer 105 against IMLS's 11.4), a third missing 355.4 / 0.899 -- same -- 467.2
+# / 0.857 (Poisson lower on 11), 6 views 1.2 / 0.972 -- same -- 2.0 / 0.956 (Poisson lower on 9). The
+# winding level does not tell the first two apart: 0.23-0.41 on 3-view scans, 0.39-0.48 with a third
+# missing (6 views 0.50).
 # The IMLS target of an open cloud (winding level under CLOSED_LEVEL) reaches no further than this
 # from the points, but where they enclose it (target_surface's depth): behind a one-sided scan the
 # winding number reads inside out to the box, a block that only a round object resembles. Range
