@@ -2,7 +2,8 @@
 
 For each dev mesh, 10^6 area-uniform samples with their true normals (seeded) go through the
 point-cloud path as ``reconstruct`` runs it for a clean oriented cloud from the target on: the
-screened Poisson target at depth 8 (the 64 grid's, ``MAX_TARGET_GRID``), the VoroLoss samples of
+screened Poisson target at the depth ``reconstruct`` picks (``poisson_depth`` from the grid and the
+point spacing: 9 for these clouds), the VoroLoss samples of
 it, the fit (``CLOUD_STEPS`` steps), the cleaned mesh snapped to the target. The target is built
 once per mesh; only the generators differ:
 
@@ -45,6 +46,7 @@ def run_mesh(name: str, n_points: int, uniform, finest: int, tolerances) -> list
     from voro3d.frames import fit_frame
     from voro3d.generators import AdaptiveBand
     from voro3d.pointcloud.poisson import poisson_depth, poisson_surface
+    from voro3d.pointcloud.preprocess import cloud_stats
     from voro3d.pointcloud.debris import drop_stray_cells
     from voro3d.pointcloud.reconstruct import SnapTarget, cloud_mesh
     from voro3d.pointcloud.resolution import band_levels, target_samples
@@ -55,7 +57,8 @@ def run_mesh(name: str, n_points: int, uniform, finest: int, tolerances) -> list
     points, normals = sample_surface(mesh, n_points, seed=1)
     frame = fit_frame(points)
     framed = frame.apply(points)
-    target = poisson_surface(framed, normals, poisson_depth(MAX_TARGET_GRID))
+    depth = poisson_depth(MAX_TARGET_GRID, cloud_stats(framed).median_spacing)
+    target = poisson_surface(framed, normals, depth)
     vertices = target.project(target.vertices)
     snap = SnapTarget(frame.invert(vertices), target.triangles, snap=True, smoothing=0.0)
     variants = [("uniform", g, None) for g in uniform] + [("adaptive", finest, t) for t in tolerances]
@@ -70,7 +73,7 @@ def run_mesh(name: str, n_points: int, uniform, finest: int, tolerances) -> list
         seconds = time.perf_counter() - start
         out = cloud_mesh(shape, snap)
         score = voro3d.evaluate(out, mesh)
-        rows.append(dict(mesh=name, kind=kind, grid=grid, tolerance=tolerance, generators=len(shape.generators),
+        rows.append(dict(mesh=name, kind=kind, grid=grid, tolerance=tolerance, depth=depth, generators=len(shape.generators),
                          samples=int(samples.shape[0]), searches=info.candidate_searches, fit_seconds=round(seconds, 2),
                          faces=len(out.triangles), cd=round(float(score["chamfer_x1e5"]), 4),
                          f1=round(float(score["f1"]), 4), nc=round(float(score["nc"]), 4),
@@ -123,10 +126,11 @@ def _fmt(value, digits=4):
 def write(rows, compared, out: Path, args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "adaptive.json").write_text(json.dumps(dict(points=args.points, rows=rows, summary=compared), indent=1))
+    depths = ", ".join(map(str, sorted({r.get("depth", 8) for r in rows})))
     lines = ["# Adaptive against uniform generators", "",
              f"`python benchmarks/bench_adaptive.py` ({args.points:,} true-normal samples per mesh, the point-cloud "
-             "path from its Poisson target on; one process, back to back, quiet machine). CD x1e5, NC and F1 against "
-             "the mesh; fit seconds are band, samples, fit and labels.", "",
+             f"path from its Poisson target on, depth {depths}; one process, back to back, quiet machine). CD x1e5, "
+             "NC and F1 against the mesh; fit seconds are band, samples, fit and labels.", "",
              "| mesh | band | grid | tolerance | generators | samples | searches | faces | fit s | CD | F1 | NC |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -112,11 +112,12 @@ scans of `../shared/data/scans`. The pipeline itself is described in `voro3d/poi
     "adaptive": """\
 `benchmarks/bench_adaptive.py`: the adaptive band `grid="auto"` fits on a dense cloud (octree from
 128³ up to 32³ voxels, split where the target bends) against uniform bands of 48-128³, on 10⁶
-true-normal points of 4 dev meshes, the same Poisson target for all. At the same number of
-generators the two are level (CD within 0.6%, NC within 0.0015) and the adaptive band has 1.1-1.35x
-the faces; on the two CAD meshes it reaches the NC of the uniform 96³ band with 1.8-2.8x fewer
-generators and 0.7-0.8x its fit time, on the organic ones it needs about as many (its fit then
-1.0-1.3x slower: it searches candidates more often).""",
+true-normal points of 4 dev meshes, the same Poisson target (depth 9, as `reconstruct` builds it)
+for all. Since the target went to depth 9 the band no longer pays: at the same number of generators
+its CD is 0.1-1.3% higher on bunny, armadillo and fandisk (0.1-0.6% lower on abc_00000005), NC within
+0.002, with 1.0-1.3x the faces; at the same CD the uniform bands need fewer generators on bunny and
+armadillo and fit as fast or faster, and on fandisk every uniform band has the lower CD. Against the
+uniform 128³ band, the default (tolerance 0.05) fits in 0.5-0.8x the time at 0.1-1% higher CD.""",
     "tiles": """\
 `benchmarks/bench_tiles.py`: 10⁷ true-normal points of a dev mesh, `reconstruct` planned on a
 million of them with its fit in tiles, run by the local process pool and by Ray (2 workers each),
