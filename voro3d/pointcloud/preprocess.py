@@ -161,9 +161,13 @@ def _neighbour_median(values: np.ndarray, neighbour: np.ndarray, block: int = 2*
 
 def _plane_residuals(neighbourhoods: np.ndarray) -> np.ndarray:
     """(n,) smallest covariance eigenvalue of (n, k, 3) neighbourhoods: the squared RMS distance to their best-fit plane."""
+    return np.linalg.eigvalsh(_centred_covariance(neighbourhoods)[1])[:, 0]
+
+
+def _centred_covariance(neighbourhoods: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, k, 3) neighbourhoods -> their points about their centroid (n, k, 3) and covariance (n, 3, 3)."""
     local = neighbourhoods - neighbourhoods.mean(axis=1, keepdims=True)
-    covariance = np.einsum("nki,nkj->nij", local, local) / neighbourhoods.shape[1]
-    return np.linalg.eigvalsh(covariance)[:, 0]
+    return local, np.einsum("nki,nkj->nij", local, local) / neighbourhoods.shape[1]
 
 
 def _median_residual(blocks: list) -> float:
@@ -211,10 +215,8 @@ def _on_sheet(points, neighbourhood, block: int = 2**16) -> np.ndarray:
     the first point within ``SUSPECT_OFFSET`` of it."""
     flat = []
     for start in range(0, len(neighbourhood), block):
-        around = points[neighbourhood[start:start + block]]
-        centre = around.mean(axis=1)
-        local = around - centre[:, None]
-        value, vector = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local) / around.shape[1])
+        local, covariance = _centred_covariance(points[neighbourhood[start:start + block]])
+        value, vector = np.linalg.eigh(covariance)
         spread = np.sqrt(value[:, 2])
         offset = np.abs(np.einsum("ni,ni->n", local[:, 0], vector[:, :, 0]))
         flat.append((np.sqrt(np.maximum(value[:, 0], 0.0)) < SUSPECT_FLATNESS * spread)
@@ -240,6 +242,8 @@ def _small_clusters(points, distance, neighbour, candidate, *, share: float = 0.
     boxes that do not overlap): far-off clumps of strays. A sparsely sampled part of the surface
     falls into small pieces too, but among the rest, and stays."""
     index = np.flatnonzero(candidate)
+    if not index.size:
+        return np.zeros(len(candidate), bool)
     piece = np.unique(_pieces(distance, neighbour, candidate)[index], return_inverse=True)[1].reshape(-1)
     size = np.bincount(piece)
     small = size < max(share * len(index), 10)
