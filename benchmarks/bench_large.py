@@ -1,4 +1,4 @@
-"""A million oriented points: ``voro3d.reconstruct`` against Open3D's screened Poisson at depths 9 and 10.
+"""Dense oriented points: ``voro3d.reconstruct`` against Open3D's screened Poisson at depths 9 and 10.
 
 For each dev mesh, ``--points`` area-uniform samples with their true (face) normals
 (:func:`voro3d.sampling.sample_surface`, seeded) are written once; every method then runs in a
@@ -8,17 +8,20 @@ resident memory of the child and all its descendants (a tiled fit's pool workers
 processes), summed every 0.5 s (:func:`run_child`):
 
 * ``voro3d``: ``voro3d.reconstruct(cloud)`` with ``grid="auto"``, as a user with a dense oriented scan calls it;
-* ``poisson9``, ``poisson10``: ``TriangleMesh.create_from_point_cloud_poisson(cloud, depth=d)``.
+* ``poisson<d>`` (``--methods``; default 9 and 10): ``TriangleMesh.create_from_point_cloud_poisson(cloud, depth=d)``.
 
 Each output is scored against the mesh (:func:`voro3d.evaluate`: CD x1e5, F1, NC) in the parent.
-Methods of one mesh run back to back, so they share the machine's load; the load average is
-recorded before each. Writes ``benchmarks/results/large.md`` and ``large.json``.
+Methods of one mesh run in turn (``--repeats`` times, seconds the median), so they share the
+machine's load; the load average is recorded before each. Where Poisson ran at the depth of
+voro3d's own target (read from its ``target`` phase line), the table ends with voro3d's time over
+Poisson's. Writes ``benchmarks/results/<name>.md`` and ``.json`` (``--name``, default ``large``).
 
 ``--scaling 100000 300000 ...``: instead, ``voro3d`` alone on one mesh at each point count, its
 seconds and peak memory against the count as a table and a log-log plot
 (``benchmarks/results/large_scaling.md``, ``.json``, ``.png``).
 
     python benchmarks/bench_large.py [--meshes organic_bunny.off ...] [--points 1000000]
+    python benchmarks/bench_large.py --points 100000 --methods voro3d poisson8 poisson9 --repeats 3 --name large_100k
     python benchmarks/bench_large.py --scaling 100000 300000 1000000 3000000 [--meshes organic_bunny.off]
 """
 from __future__ import annotations
@@ -26,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -52,7 +56,7 @@ cloud.normals = o3d.utility.Vector3dVector(data[:, 3:])
 start = time.perf_counter()
 if method == "voro3d":
     import voro3d
-    mesh = voro3d.reconstruct(cloud)
+    mesh = voro3d.reconstruct(cloud, progress=True)  # its phase lines name the target's depth
 else:
     mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=int(method[len("poisson"):]))
 seconds = time.perf_counter() - start
@@ -89,8 +93,10 @@ def run_child(arguments: list, interval: float = 0.5) -> tuple[dict, str, float]
 
 def _run(method: str, cloud: Path, out: Path) -> dict:
     load = os.getloadavg()[0]
-    result, _, tree_gb = run_child([CHILD, method, str(cloud), str(out)])
-    return dict(result, peak_gb=max(result["peak_gb"], tree_gb), load_before=load)
+    result, stderr, tree_gb = run_child([CHILD, method, str(cloud), str(out)])
+    depth = re.search(r"target +poisson depth (\d+)", stderr)
+    return dict(result, peak_gb=max(result["peak_gb"], tree_gb), load_before=load,
+                **({"target_depth": int(depth.group(1))} if depth else {}))
 
 
 def main() -> None:
@@ -99,6 +105,8 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--methods", nargs="+", default=["voro3d", "poisson9", "poisson10"])
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each method; seconds are their median")
+    parser.add_argument("--name", default="large", help="file stem of the table and JSON")
     parser.add_argument("--scaling", type=int, nargs="+", help="point counts: voro3d alone on the first mesh")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
@@ -115,29 +123,65 @@ def main() -> None:
             points, normals = voro3d.sample_surface(source, args.points, seed=0)
             cloud = Path(scratch) / "cloud.npy"
             np.save(cloud, np.hstack([points, normals]))
-            for method in args.methods:
-                out = Path(scratch) / f"{method}.ply"
-                row = dict(mesh=name, points=args.points, method=method, **_run(method, cloud, out))
-                scores = voro3d.evaluate(load_mesh(out, weld=False), source)
-                row.update(cd=scores["chamfer_x1e5"], f1=scores["f1"], nc=scores["nc"])
-                rows.append(row)
-                print(row, flush=True)
+            # Repeats run the methods in turn, so that each one meets the machine's changing load alike;
+            # the first run's mesh is scored (the mesh does not change between runs).
+            for repeat in range(args.repeats):
+                for method in args.methods:
+                    out = Path(scratch) / f"{method}.ply"
+                    row = dict(mesh=name, points=args.points, method=method, repeat=repeat, **_run(method, cloud, out))
+                    if repeat == 0:
+                        scores = voro3d.evaluate(load_mesh(out, weld=False), source)
+                        row.update(cd=scores["chamfer_x1e5"], f1=scores["f1"], nc=scores["nc"])
+                    rows.append(row)
+                    print(row, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "large.json").write_text(json.dumps(dict(date=time.strftime("%Y-%m-%d %H:%M"), cpus=os.cpu_count(),
+    (args.out / f"{args.name}.json").write_text(json.dumps(dict(date=time.strftime("%Y-%m-%d %H:%M"), cpus=os.cpu_count(),
                                                          rows=rows), indent=1))
-    lines = [f"# A million oriented points: voro3d against Poisson ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs)",
+    lines = [f"# {args.points:,} oriented points: voro3d against Poisson ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs)",
              "", f"{args.points:,} area-uniform samples of each dev mesh with their true normals; each method in a "
              "process of its own on the same points (peak = the highest of its resident maximum and its process tree's "
-             "resident sum), methods of one mesh "
-             "back to back; CD x1e5, F1 at 0.003 and NC against the mesh (`voro3d.evaluate`). "
-             "`python benchmarks/bench_large.py`.", "",
-             "| mesh | method | seconds | peak GB | faces | CD | F1 | NC | load before |",
+             f"resident sum), methods of one mesh in turn, {args.repeats} run(s) each (seconds: the median; "
+             "peak: the highest); CD x1e5, F1 at 0.003 and NC against the mesh (`voro3d.evaluate`). "
+             f"`python benchmarks/bench_large.py --points {args.points} --methods {' '.join(args.methods)} "
+             f"--repeats {args.repeats} --name {args.name}`.", "",
+             "| mesh | method | seconds (runs) | peak GB | faces | CD | F1 | NC | load before |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['mesh']} | {r['method']} | {r['seconds']:.1f} | {r['peak_gb']:.2f} | {r['faces']:,} | "
+    summary = _medians(rows)
+    for r in summary:
+        runs = ", ".join(f"{s:.1f}" for s in r["runs"])
+        lines.append(f"| {r['mesh']} | {r['method']} | {r['seconds']:.1f} ({runs}) | {r['peak_gb']:.2f} | {r['faces']:,} | "
                      f"{r['cd']:.3f} | {r['f1']:.3f} | {r['nc']:.4f} | {r['load_before']:.1f} |")
-    (args.out / "large.md").write_text("\n".join(lines) + "\n")
+    ratios = _depth_ratios(summary)
+    if ratios:
+        lines += ["", "voro3d's seconds over Poisson's at the octree depth of voro3d's own target (its `target` "
+                  "phase line): " + ", ".join(f"{mesh} {ratio:.2f}x (depth {depth})" for mesh, depth, ratio, _, _ in ratios)
+                  + f"; summed {sum(r[3] for r in ratios) / sum(r[4] for r in ratios):.2f}x."]
+    (args.out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+
+
+def _medians(rows: list) -> list:
+    """One row per mesh and method: the first run's row with the median seconds over its runs,
+    the highest peak and the list of runs."""
+    out = []
+    for row in rows:
+        if row["repeat"] == 0:
+            runs = [r for r in rows if r["mesh"] == row["mesh"] and r["method"] == row["method"]]
+            out.append(dict(row, seconds=float(np.median([r["seconds"] for r in runs])),
+                            peak_gb=max(r["peak_gb"] for r in runs), runs=[r["seconds"] for r in runs]))
+    return out
+
+
+def _depth_ratios(summary: list) -> list:
+    """``(mesh, depth, ratio, voro3d seconds, Poisson seconds)`` for each mesh whose Poisson run
+    at voro3d's target depth was measured."""
+    seconds = {(r["mesh"], r["method"]): r["seconds"] for r in summary}
+    out = []
+    for r in summary:
+        poisson = seconds.get((r["mesh"], f"poisson{r.get('target_depth')}"))
+        if r["method"] == "voro3d" and poisson:
+            out.append((r["mesh"], r["target_depth"], r["seconds"] / poisson, r["seconds"], poisson))
+    return out
 
 
 def _scaling(args) -> None:

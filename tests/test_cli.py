@@ -1,4 +1,5 @@
 """The ``voro3d`` command as a person meets it: paths checked first, flags in errors, one grid rule."""
+import re
 import subprocess
 import sys
 import time
@@ -117,6 +118,8 @@ def test_progress_in_a_log_is_phase_lines_not_a_bar(tmp_path, cloud):
     assert done.returncode == 0, done.stderr
     lines = done.stderr.splitlines()
     assert any(line.startswith("voro3d fit") for line in lines) and "VoroMesh fit:" not in done.stderr
+    # A closed cloud's Poisson target names its octree depth (what a user compares Poisson at).
+    assert any(re.match(r"voro3d target +poisson depth \d+, closed", line) for line in lines), done.stderr
     assert len(lines) <= 8
 
 

@@ -356,7 +356,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     surface_vertices = target.project(target.vertices)
     plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind)
     seconds["surface"] = time.perf_counter() - start
-    report_phase(progress, "target", f"{kind}{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
+    report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}"
+                 f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
                  f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}", seconds["surface"])
 
     start = time.perf_counter()
