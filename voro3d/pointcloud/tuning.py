@@ -88,7 +88,10 @@ CLOSED_LEVEL = 0.25
 # rule sends 5 to it, homer 105 against IMLS's 11.4), a third missing 355.4 / 0.899 -- same -- 467.2
 # / 0.857 (Poisson lower on 11), 6 views 1.2 / 0.972 -- same -- 2.0 / 0.956 (Poisson lower on 9). The
 # winding level does not tell the first two apart: 0.23-0.41 on 3-view scans, 0.39-0.48 with a third
-# missing (6 views 0.50).
+# missing (6 views 0.50). Nor do (same clouds, at e9c897c) the share of either target's area over
+# 4-16 spacings from the points, points whose outward normal ray it blocks, or the thickness of
+# Poisson's unsupported parts (20-57 octree cells on the 3-view clouds it is sent: fills, not flaps);
+# with the true normals Poisson still fails the 3-view scans (homer CD 91.7, IMLS 7.8).
 # The IMLS target of an open cloud (winding level under CLOSED_LEVEL) reaches no further than this
 # from the points, but where they enclose it (target_surface's depth): behind a one-sided scan the
 # winding number reads inside out to the box, a block that only a round object resembles. Range
