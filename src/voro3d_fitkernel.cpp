@@ -352,8 +352,11 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
       auto offer = [&](double squared, std::int64_t g) {
         const std::pair<double, std::int64_t> entry{squared, g};
         if (static_cast<std::int64_t>(best.size()) == k && !(entry < best.back())) return;
-        best.insert(std::upper_bound(best.begin(), best.end(), entry), entry);
-        if (static_cast<std::int64_t>(best.size()) > k) best.pop_back();
+        // Insertion from the back: k is small, and most entries that get here go near the end.
+        if (static_cast<std::int64_t>(best.size()) < k) best.push_back(entry);
+        std::size_t slot = best.size() - 1;
+        for (; slot > 0 && entry < best[slot - 1]; --slot) best[slot] = best[slot - 1];
+        best[slot] = entry;
       };
       auto box_members = [&](const std::int64_t* lo, const std::int64_t* hi, auto&& visit) {
         for (std::int64_t a = lo[0]; a <= hi[0]; ++a) {
@@ -369,7 +372,8 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
       constexpr std::int64_t kLocalRings = 2;
       std::int64_t local_centre[3] = {-1, -1, -1}, local_lo[3] = {0, 0, 0}, local_hi[3] = {0, 0, 0};
       std::vector<double> local_x, local_y, local_z, local_squared;
-      std::vector<std::int64_t> local_index;
+      std::vector<std::int64_t> local_index, previous;  // the last sample's k best, all in the box
+      std::vector<std::uint32_t> local_kept;
       for (std::int64_t s = block * kBlock; s < std::min(m, (block + 1) * kBlock); ++s) {
         const double x[3] = {samples(s, 0), samples(s, 1), samples(s, 2)};
         if (!(std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2]))) {
@@ -390,6 +394,19 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
             local_index.push_back(g);
           });
           local_squared.resize(local_index.size());
+          local_kept.resize(local_index.size());
+          previous.clear();
+        }
+        // The last sample's k best are box members, so the farthest of them from x bounds x's k-th
+        // nearest in the box: members beyond it cannot enter (the same computed distances, so exact).
+        double bound = std::numeric_limits<double>::infinity();
+        if (static_cast<std::int64_t>(previous.size()) == k) {
+          bound = 0.0;
+          for (std::int64_t g : previous) {
+            const double dx = sites[3 * g] - x[0], dy = sites[3 * g + 1] - x[1], dz = sites[3 * g + 2] - x[2];
+            bound = std::max(bound, dx * dx + dy * dy + dz * dz);
+          }
+          bound *= 1.0 + 1e-12;  // in case the compiler contracts one of the two sums differently
         }
         best.clear();
         const std::size_t count = local_index.size();
@@ -397,7 +414,19 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
           const double dx = local_x[e] - x[0], dy = local_y[e] - x[1], dz = local_z[e] - x[2];
           local_squared[e] = dx * dx + dy * dy + dz * dz;
         }
-        for (std::size_t e = 0; e < count; ++e) offer(local_squared[e], local_index[e]);
+        // Branch-free compaction first: which members pass is close to random, the branch is not.
+        const double* squared = local_squared.data();
+        std::uint32_t* kept = local_kept.data();
+        std::size_t n_kept = 0;
+        for (std::size_t e = 0; e < count; ++e) {
+          kept[n_kept] = static_cast<std::uint32_t>(e);
+          n_kept += squared[e] <= bound;
+        }
+        for (std::size_t i = 0; i < n_kept; ++i) offer(squared[kept[i]], local_index[kept[i]]);
+        previous.clear();
+        if (static_cast<std::int64_t>(best.size()) == k) {
+          for (const auto& entry : best) previous.push_back(entry.second);
+        }
         const double local_reach = reach(x, local_lo, local_hi);
         const bool done = static_cast<std::int64_t>(best.size()) == k && best.back().first <= local_reach * local_reach;
         // Rings of cells around the sample's, each adding the cells of the next shell, until no
