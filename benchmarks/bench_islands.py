@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import json
 import time
-from pathlib import Path
-
 import numpy as np
 
 from bench_pointcloud import RESULTS, SHARED, make_cloud
@@ -34,10 +32,9 @@ MIN_ISLAND = 10
 
 def islands(points: np.ndarray, seed: int = 0) -> list[int]:
     """Sizes (largest first) of the islands of ``points`` (n, 3) that our outlier test keeps."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
+    from voro3d.geometry import components
     from voro3d.pointcloud.preprocess import outlier_mask
 
     points = points[~outlier_mask(points)]
@@ -45,9 +42,8 @@ def islands(points: np.ndarray, seed: int = 0) -> list[int]:
         points = points[np.random.default_rng(seed).choice(len(points), SUBSET, replace=False)]
     tree = cKDTree(points)
     spacing = float(np.median(tree.query(points, 9)[0][:, -1]))
-    pairs = tree.query_pairs(REACH * spacing, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    sizes = np.sort(np.bincount(connected_components(graph, directed=False)[1]))[::-1]
+    _, label = components(len(points), tree.query_pairs(REACH * spacing, output_type="ndarray"))
+    sizes = np.sort(np.bincount(label))[::-1]
     return [int(size) for size in sizes if size >= MIN_ISLAND]
 
 

@@ -179,14 +179,14 @@ SUSPECT_OFFSET = 0.15
 # 4 dev meshes (bunny, fandisk, armadillo, abc_00000005) at 10^6 points, clean and at 0.5% noise,
 # subset against every point: noise within 0.1% (fine noise 0.5%; fandisk's and abc's clean noise,
 # under 1e-7, within 2%), dimension within 0.08%, sign disagreement with 5% of the normals flipped
-# within 0.0009 of 0.095 (true normals: within 0.0001); cloud_stats 2.5-4.8 s instead of 8-10 s.
-# Clouds up to these sizes use every point. 50k (200k before): the same 4 meshes at 10^5 points,
-# clean and at 0.25% noise, read noise within 1% of every point's (fandisk's clean 1e-5 within 1%) and
-# the outputs of clean 100k / density ramp 20x / 2% outliers are unchanged (CD, NC, F1 to 4 digits);
-# the clean phase 0.54-0.79 s instead of 0.83-1.36 s. The sign disagreement only
-# decides against MAX_SIGN_DISAGREEMENT, so it takes fewer: 4 dev meshes at 10^5 points (true normals,
-# 5% flipped, Open3D's estimate_normals()), 20k points against all read within 0.0018 of each other
-# (0 / 0.0045-0.062 / 0.130-0.150) in 0.1 s instead of 0.4-0.8 s.
+# within 0.0009 of 0.095 (true normals: within 0.0001); cloud_stats 2.5-4.8 s instead of 8-10 s
+# (those figures with subsets of 200k and 100k). Clouds up to these sizes use every point.
+# STATISTICS_SAMPLE 50k: the same 4 meshes at 10^5 points, clean and at 0.25% noise, read noise within
+# 1% of every point's, and their clean 100k / density ramp 20x / 2% outliers outputs are unchanged
+# (CD, NC, F1 to 4 digits); the clean phase 0.54-0.79 s instead of 0.83-1.36 s.
+# SIGN_SAMPLE 20k: the sign disagreement only decides against MAX_SIGN_DISAGREEMENT; on those meshes at
+# 10^5 points (true normals, 5% flipped, Open3D's estimate_normals()) it reads within 0.0018 of every
+# point's (0 / 0.0045-0.062 / 0.130-0.150), in 0.1 s instead of 0.4-0.8 s.
 STATISTICS_SAMPLE = 50_000
 SIGN_SAMPLE = 20_000
 # Clouds of more than TILE_POINTS distinct points are reconstructed from a uniform subset of
