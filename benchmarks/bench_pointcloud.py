@@ -593,6 +593,9 @@ def main():
                         "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--bridge-gap", type=float, help="MAX_BRIDGE_GAP for this run (fit-frame units; 0: no "
                         "bridges), the ablation beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--hole-level", type=float, help="HOLE_LEVEL for this run (0: each cloud's own winding "
+                        "level), the ablation beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
                         "(later files win; a row without Poisson keeps the earlier file's Poisson)")
@@ -610,6 +613,11 @@ def main():
         import voro3d.pointcloud.surface as surface_module
 
         surface_module.MAX_BRIDGE_GAP = args.bridge_gap
+    for name, value in (("HOLE_LEVEL", args.hole_level), ("DENSE_SPACINGS", args.dense_spacings)):
+        if value is not None:
+            import voro3d.pointcloud.reconstruct as reconstruct_module
+
+            setattr(reconstruct_module, name, value)
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -619,7 +627,9 @@ def main():
     load = lambda: " ".join(Path("/proc/loadavg").read_text().split()[:3])  # noqa: E731
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=f"{platform.machine()}, {multiprocessing.cpu_count()} cores",
                 load_before=load(), grid=args.grid, shell_depth=args.shell_depth or "default",
-                bridge_gap="default" if args.bridge_gap is None else args.bridge_gap)
+                bridge_gap="default" if args.bridge_gap is None else args.bridge_gap,
+                **{name: value for name, value in (("hole_level", args.hole_level), ("dense_spacings", args.dense_spacings))
+                   if value is not None})
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]

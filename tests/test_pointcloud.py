@@ -309,6 +309,21 @@ def test_real_scans_reconstruct(scans):
         assert np.median(distance) < voxel, path
 
 
+def test_a_bubble_of_cells_in_the_solid_is_filled():
+    """A ball of grid cells with a cavity of about 30 cells at its centre (more than the 8 cells
+    a bubble could have before, under STRAY_CELL_SHARE of the exterior's): filled, one piece."""
+    from voro3d.pointcloud.debris import drop_stray_cells
+    from voro3d.sampling import grid_nodes
+    from voro3d.voromesh import VoroMesh
+
+    nodes = grid_nodes(20)
+    radius = np.linalg.norm(nodes, axis=1)
+    shape = VoroMesh(nodes, (radius < 0.7) & (radius > 0.2), grid=20)
+    assert _pieces(shape.to_open3d(clean=False)) == 2 and 8 < ((radius <= 0.2)).sum() < 40
+    filled = drop_stray_cells(shape)
+    assert np.array_equal(filled.occupancy, radius < 0.7) and _pieces(filled.to_open3d(clean=False)) == 1
+
+
 def test_poisson_target_keeps_the_supported_pieces_only():
     sphere = example_mesh("sphere")
     vertices, triangles = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
@@ -494,6 +509,21 @@ def test_depth_holds_an_open_scan_in_a_shell_and_keeps_a_closed_inside(sphere_cl
     # Where the points enclose what lies deeper, it stays inside (a filled cavity).
     ball = target_surface(points, normals, np.full(len(points), 0.06), 48, level=0.5, depth=0.1)
     assert ball.inside(np.array([[0.0, 0.0, 0.0], [0.3, 0.2, -0.1]])).all()
+
+
+def test_hole_level_sets_how_far_a_hole_cap_bulges(sphere_cloud):
+    """A ball with its top cut off at z = 0.4 (radius 0.8): along the axis, the far field at a
+    partial cloud's low level (0.3) bulges out to 0.72; at 1/2 it spans the rim (0.43)."""
+    points, normals = sphere_cloud[0] * 0.8, sphere_cloud[1]
+    kept = points[:, 2] < 0.4
+    axis = np.c_[np.zeros((101, 2)), np.linspace(0.0, 1.0, 101)]
+
+    def top(hole_level):
+        target = target_surface(points[kept], normals[kept], np.full(kept.sum(), 0.06), 48, level=0.3,
+                                hole_level=hole_level)
+        return axis[target.inside(axis), 2].max()
+
+    assert top(None) > 0.65 and 0.4 <= top(0.5) < 0.5
 
 
 def test_an_open_one_sided_sheet_comes_out_as_a_thin_plate():

@@ -13,9 +13,10 @@ def drop_stray_cells(shape):
 
     Inside cells joined by Voronoi faces (Delaunay edges) form groups; a group of fewer than
     ``STRAY_CELL_SHARE`` of the largest group's cells (and at most 8) is a speck: cells whose
-    label the samples nearby could not settle, turned outside. Likewise a small group of outside
-    cells that does not reach the exterior (the bounding corners) is a bubble in the solid,
-    turned inside. Flipping whole cells keeps the surface closed: it is extracted again from the
+    label the samples nearby could not settle, turned outside. Likewise a group of outside cells
+    that does not reach the exterior (the bounding corners) and is that small against the
+    exterior's group (or has at most 8 cells) is a bubble in the solid, turned inside: no scan
+    sees into a closed cavity. Flipping whole cells keeps the surface closed: it is extracted again from the
     labels.
     """
     from ..geometry import components
@@ -34,8 +35,9 @@ def drop_stray_cells(shape):
     kind[group[inside]] = True
     largest_inside = size[kind].max()
     stray = kind & (size < STRAY_CELL_SHARE * largest_inside) & (size <= 8)
-    bubble = ~kind & (size <= 8)
-    bubble[group[n:]] = False  # the exterior
+    exterior = np.unique(group[n:])
+    bubble = ~kind & ((size < STRAY_CELL_SHARE * size[exterior].max()) | (size <= 8))
+    bubble[exterior] = False
     flip = (stray | bubble)[group[:n]]
     if not flip.any():
         return shape

@@ -35,7 +35,7 @@ from .debris import drop_stray_cells
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE,
-                     DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE,
+                     DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, HOLE_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE,
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
@@ -442,9 +442,9 @@ def _target(choice: str, points, given, normals, widths, stats, *, level: float,
     kind = "poisson" if target is not None else "imls"
     if target is None:
         # Behind an open scan the solid is held within SHELL_DEPTH of the points (a shell under the
-        # seen side) unless they enclose it; a closed cloud's holes are filled as they are.
+        # seen side) unless they enclose it; a closed cloud's holes are closed at HOLE_LEVEL.
         target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
-                                depth=None if closed else SHELL_DEPTH)
+                                hole_level=max(level, HOLE_LEVEL) if closed else None, depth=None if closed else SHELL_DEPTH)
     if choice == "auto" and not target.dense:
         sheet = sheet_if_closer(target, given, stats.median_spacing, resolution)
         if sheet is not None:

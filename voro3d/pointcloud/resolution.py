@@ -70,8 +70,8 @@ def target_samples(target, surface_vertices, points, grid: int, *, band: Adaptiv
     """The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` of them (half a mesh fit's: the mesh is
     fitted to the target afterwards), fewer where ``band`` is coarse.
 
-    Dense clean points (``target.dense``: spacing under a third of a voxel) are exact samples
-    already, and the proxy mesh is only as good as its grid (a wall thinner than a grid step is
+    Dense clean points (``target.dense``: spacing under ``DENSE_SPACINGS`` of a voxel) are exact
+    samples already, and the proxy mesh is only as good as its grid (a wall thinner than a grid step is
     lost there): they are used, and proxy samples only fill the holes, where no point is within
     ``HOLE_VOXELS`` voxels. Otherwise the samples all come from the target mesh: a Poisson
     mesh as it is (four times finer than the grid), or the IMLS proxy with its vertices moved

@@ -238,7 +238,7 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
 
 def target_surface(points, normals, widths, resolution: int, *, dense: bool = False,
                    min_support: int = MIN_SUPPORT, level: float | None = None,
-                   depth: float | None = None) -> TargetSurface:
+                   hole_level: float | None = None, depth: float | None = None) -> TargetSurface:
     """Sample the field on a ``resolution^3`` grid over ``[-1, 1]^3`` and mesh it.
 
     Parameters
@@ -256,6 +256,11 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
         best-supported piece's) are debris and are removed (:func:`~voro3d.pointcloud.fields.mesh_field`).
     level : float, optional
         The cloud's :func:`winding_level`, when the caller has it already.
+    hole_level : float, optional
+        The winding number at which the far field (holes, unseen parts) is closed; default ``level``.
+        Between the two bounds: 1/2 spans a hole's rim without bulging (the cap over a round hole
+        in a sphere is the flat disk) but cuts into parts seen from one side only, whose winding
+        number stays under 1/2; a partial cloud's own, lower level keeps those and balloons its caps.
     depth : float, optional
         Fit-frame units. The solid reaches no further than this from the points, except where
         it encloses what lies further (the inside of a surface seen all round, or closed but for
@@ -299,7 +304,7 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     winding = ndimage.map_coordinates(coarse, index.T, order=1, mode="nearest")
     if level is None:
         level = float(np.clip(winding_level(points, normals, areas, float(np.median(widths))), 0.0, 0.5))
-    field[far] = (level - winding) * 2.0 * float(np.median(widths))
+    field[far] = ((level if hole_level is None else hole_level) - winding) * 2.0 * float(np.median(widths))
     field = field.reshape((resolution,) * 3)
     limit = None
     if depth is not None:

@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS"]
 
@@ -68,12 +68,22 @@ TARGET_CELL_SPACINGS = 1.5
 MIN_SPACINGS_PER_VOXEL = 1.0
 # Clean points closer than this share of a voxel are dense: exact samples themselves, and their
 # winding number decides inside near the surface (:class:`~voro3d.pointcloud.surface.TargetSurface`).
-DENSE_SPACINGS = 1 / 3
+# Range scans of 30k points sit at 0.32-0.45 voxel at grid 64; at 1/3, the 3-view scans at 0.32-0.33
+# (fandisk, cow, thingi32_75655 of the 12 benchmark meshes) were dense and came out scaly: the
+# winding number of points with depth noise and uneven coverage labels the cells near the surface
+# (cow NC 0.842, against 0.884 at 1/4 and CD 24.6 against 21.4). 3-view scans of the 12, mean CD / NC /
+# F1 at 1/3 and 1/4: 71.3 / 0.869 / 0.655 and 72.4 / 0.876 / 0.661; the dev clouds of 10^5 points and
+# more read 0.16-0.22 and stay dense. Rerun: bench_pointcloud.py --dense-spacings 0.3333.
+DENSE_SPACINGS = 1 / 4
 # Proxy samples fill the holes of a dense cloud where no point is within this many voxels (nearer,
 # they only blur the exact points: 2 spacings added 13% proxy samples on organic_arm, NC 0.979 -> 0.968).
 HOLE_VOXELS = 1.0
 # Inside cells in groups (joined by Voronoi faces) of fewer cells than this share of the largest
-# group's are strays: cells whose label the samples nearby could not settle.
+# group's are strays: cells whose label the samples nearby could not settle; outside cells cut off
+# from the exterior in groups under this share of its cells are bubbles (pointcloud.debris). A 3-view
+# range scan of fandisk (HOLE_LEVEL 0.42) held bubbles of 14 and 46 cells against 5,725 exterior
+# ones, cavities a voxel under its top: 3 pieces, 1 with the rule (bubbles of at most 8 cells only
+# before it); no other of the 144 benchmark outputs had more pieces than its cloud has islands.
 STRAY_CELL_SHARE = 0.02
 # Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points
 # enclose a volume (0.5 closed, about 0 for a one-sided scan): their target is screened Poisson.
@@ -92,6 +102,17 @@ CLOSED_LEVEL = 0.25
 # 4-16 spacings from the points, points whose outward normal ray it blocks, or the thickness of
 # Poisson's unsupported parts (20-57 octree cells on the 3-view clouds it is sent: fills, not flaps);
 # with the true normals Poisson still fails the 3-view scans (homer CD 91.7, IMLS 7.8).
+# The IMLS target of a closed cloud closes its holes and unseen parts at a winding number of at least
+# this (surface.target_surface's hole_level; near the points the IMLS field decides). 3-view range
+# scans of the 12 benchmark meshes (7 take IMLS), grid 64, DENSE_SPACINGS 1/4, mean CD / NC / F1 with
+# the cloud's own level (0.23-0.42) / 0.42 / 0.46 / 0.5: 72.4 / 0.876 / 0.661 -- 47.5 / 0.877 / 0.661
+# -- 47.0 / 0.872 / 0.649 -- 49.1 / 0.868 / 0.637 (fandisk 176 -> 45, thingi32_75655 138 -> 38,
+# elephant 73 -> 16: caps that ballooned; at 0.5 limbs seen from one side are cut: armadillo 4.2 ->
+# 16.6). On 8 dev meshes outside the benchmark (abc_00000003, screwdriver, camel_b, fertility,
+# cheburashka, thingi32_44234 / 96481, decimated-max; 3 take IMLS), own level against 0.42: 69.2 /
+# 0.899 / 0.677 -> 33.8 / 0.903 / 0.686 (thingi32_96481 269 -> 41). Rerun: bench_pointcloud.py
+# --conditions "range scan 3 views" --no-poisson --hole-level 0 (--shapes ... for the other meshes).
+HOLE_LEVEL = 0.42
 # The IMLS target of an open cloud (winding level under CLOSED_LEVEL) reaches no further than this
 # from the points, but where they enclose it (target_surface's depth): behind a one-sided scan the
 # winding number reads inside out to the box, a block that only a round object resembles. Range
