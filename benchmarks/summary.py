@@ -154,13 +154,17 @@ points do not enclose it: a shell, not a block out to the box, while Poisson run
 Where they do (3 views), the unseen parts are closed at a winding number of at least `HOLE_LEVEL`
 (0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5).""",
     "pointcloud_range_more": """\
-The same run as `pointcloud_range` (before the bubble rule of `pointcloud.debris`, which changes no
-output here: all are one piece) on 8 dev meshes outside its 12, both methods and `alpha_wrap_3`: the
-range-scan rules on meshes they were not set on. 3 views: VoroMesh CD 77.8 against alpha wrap's
-49.4 (abc_00000007, IMLS, 114 against 5.7; organic_arm and abc_00000009, Poisson, 73 and 130 against
-23 and 68); 6 views: 48.3 against 11.0, F1 0.685 against
-Open3D's 0.701 (thin-walled CAD parts: a cup, abc_00000009, CD 201; abc_00000006 and its twin
-cad_nmc_sample0, 84-86, where Open3D reads 72-75; abc_00000007 as an offset sheet, F1 0.04).""",
+The range conditions of `pointcloud_range` on 16 dev meshes outside its 12 (two runs of the same
+code: the first 8 before the bubble rule of `pointcloud.debris`, which changes none of their
+outputs, all one piece), both methods and `alpha_wrap_3`: the range-scan rules on meshes they were
+not set on. Against Open3D's pipeline VoroMesh has the lower CD and the higher NC and F1 in every
+condition (6 views: F1 0.818 against 0.817). Against alpha wrap: 1 view CD 471 against 721, 3 views
+53.9 against 51.2, 6 views 24.7 against 6.5. The 8 organic meshes of the second run win on every
+condition's mean (3 views 30.0 against 53.0, 6 views 1.0 against 2.0), though 4 of their 24 clouds
+lose (bumpy-cube from 1 view as a sheet, 1,470 against 1,027; camel_b, fertility and thingi32_44234
+from 3 views, on Poisson). The large losses are the thin-walled CAD parts of the first run: abc_00000009, a cup, CD 201 from 6 views (Poisson's target 55, the 64^3 VoroMesh loses the
+wall); abc_00000006 and its twin cad_nmc_sample0, 84-86 (Open3D 72-75); abc_00000007, a lid, 114
+against 5.7 from 3 views and an offset sheet from 6 (F1 0.04).""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside
