@@ -605,19 +605,17 @@ def main():
     if args.merge:
         merge(args.merge, args.out, args.folder)
         return
-    if args.shell_depth is not None:
-        import voro3d.pointcloud.reconstruct as reconstruct_module
+    import voro3d.pointcloud.reconstruct as reconstruct_module
+    import voro3d.pointcloud.surface as surface_module
 
+    if args.shell_depth is not None:
         reconstruct_module.SHELL_DEPTH = None if args.shell_depth == "none" else float(args.shell_depth)
     if args.bridge_gap is not None:
-        import voro3d.pointcloud.surface as surface_module
-
         surface_module.MAX_BRIDGE_GAP = args.bridge_gap
-    for name, value in (("HOLE_LEVEL", args.hole_level), ("DENSE_SPACINGS", args.dense_spacings)):
-        if value is not None:
-            import voro3d.pointcloud.reconstruct as reconstruct_module
-
-            setattr(reconstruct_module, name, value)
+    if args.hole_level is not None:
+        reconstruct_module.HOLE_LEVEL = args.hole_level
+    if args.dense_spacings is not None:
+        reconstruct_module.DENSE_SPACINGS = args.dense_spacings
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -628,8 +626,8 @@ def main():
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=f"{platform.machine()}, {multiprocessing.cpu_count()} cores",
                 load_before=load(), grid=args.grid, shell_depth=args.shell_depth or "default",
                 bridge_gap="default" if args.bridge_gap is None else args.bridge_gap,
-                **{name: value for name, value in (("hole_level", args.hole_level), ("dense_spacings", args.dense_spacings))
-                   if value is not None})
+                hole_level="default" if args.hole_level is None else args.hole_level,
+                dense_spacings="default" if args.dense_spacings is None else args.dense_spacings)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]

@@ -162,9 +162,10 @@ condition (6 views: F1 0.818 against 0.817). Against alpha wrap: 1 view CD 471 a
 53.9 against 51.2, 6 views 24.7 against 6.5. The 8 organic meshes of the second run win on every
 condition's mean (3 views 30.0 against 53.0, 6 views 1.0 against 2.0), though 4 of their 24 clouds
 lose (bumpy-cube from 1 view as a sheet, 1,470 against 1,027; camel_b, fertility and thingi32_44234
-from 3 views, on Poisson). The large losses are the thin-walled CAD parts of the first run: abc_00000009, a cup, CD 201 from 6 views (Poisson's target 55, the 64^3 VoroMesh loses the
-wall); abc_00000006 and its twin cad_nmc_sample0, 84-86 (Open3D 72-75); abc_00000007, a lid, 114
-against 5.7 from 3 views and an offset sheet from 6 (F1 0.04).""",
+from 3 views, on Poisson). The large losses are the thin-walled CAD parts of the first run:
+abc_00000009, a cup, CD 201 from 6 views (Poisson's target 55, the 64^3 VoroMesh loses the wall);
+abc_00000006 and its twin cad_nmc_sample0, 84-86 (Open3D 72-75); abc_00000007, a lid, 114 against
+5.7 from 3 views and an offset sheet from 6 (F1 0.04).""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside

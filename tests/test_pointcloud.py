@@ -319,7 +319,7 @@ def test_a_bubble_of_cells_in_the_solid_is_filled():
     nodes = grid_nodes(20)
     radius = np.linalg.norm(nodes, axis=1)
     shape = VoroMesh(nodes, (radius < 0.7) & (radius > 0.2), grid=20)
-    assert _pieces(shape.to_open3d(clean=False)) == 2 and 8 < ((radius <= 0.2)).sum() < 40
+    assert _pieces(shape.to_open3d(clean=False)) == 2 and 8 < (radius <= 0.2).sum() < 40
     filled = drop_stray_cells(shape)
     assert np.array_equal(filled.occupancy, radius < 0.7) and _pieces(filled.to_open3d(clean=False)) == 1
 

@@ -16,8 +16,8 @@ def drop_stray_cells(shape):
     label the samples nearby could not settle, turned outside. Likewise a group of outside cells
     that does not reach the exterior (the bounding corners) and is that small against the
     exterior's group (or has at most 8 cells) is a bubble in the solid, turned inside: no scan
-    sees into a closed cavity. Flipping whole cells keeps the surface closed: it is extracted again from the
-    labels.
+    sees into a closed cavity. Flipping whole cells keeps the surface closed: it is extracted
+    again from the labels.
     """
     from ..geometry import components
 

@@ -444,7 +444,8 @@ def _target(choice: str, points, given, normals, widths, stats, *, level: float,
         # Behind an open scan the solid is held within SHELL_DEPTH of the points (a shell under the
         # seen side) unless they enclose it; a closed cloud's holes are closed at HOLE_LEVEL.
         target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
-                                hole_level=max(level, HOLE_LEVEL) if closed else None, depth=None if closed else SHELL_DEPTH)
+                                hole_level=max(level, HOLE_LEVEL) if closed else None,
+                                depth=None if closed else SHELL_DEPTH)
     if choice == "auto" and not target.dense:
         sheet = sheet_if_closer(target, given, stats.median_spacing, resolution)
         if sheet is not None:
