@@ -111,6 +111,16 @@ def test_candidates_are_searched_again_after_moves(sphere, monkeypatch):
     assert often.candidate_searches > never.candidate_searches == 1
 
 
+def test_refresh_distance_is_an_option_of_fit_samples():
+    samples, _ = sample_surface(o3d.geometry.TriangleMesh.create_sphere(radius=0.8, resolution=30), 20_000, seed=0)
+    inside = lambda points: np.linalg.norm(points, axis=1) < 0.8  # noqa: E731
+    _, often = fit_module.fit_samples(samples, inside, 12, refresh_voxels=0.1, **TINY)
+    _, seldom = fit_module.fit_samples(samples, inside, 12, refresh_voxels=1.0, **TINY)
+    assert often.candidate_searches > seldom.candidate_searches
+    with pytest.raises(ValueError, match="refresh_voxels"):
+        fit_module.fit_samples(samples, inside, 12, refresh_voxels=0.0, **TINY)
+
+
 def test_adam_matches_torch_optim():
     start = torch.randn(3, 50, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     ours, theirs = start.clone().requires_grad_(), start.clone().requires_grad_()

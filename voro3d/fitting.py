@@ -219,7 +219,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
 def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr: float = 0.005,
                 milestones=(80, 120, 200, 250), gamma: float = 0.5, batch_fraction: float = 0.2,
                 k: int = FIT_K, seed: int = 0, device: str = "cpu", threads: int | None = None,
-                generators=None, progress: bool = False) -> tuple[VoroMesh, FitInfo]:
+                generators=None, refresh_voxels: float | None = None, progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to surface samples, with any inside test: the core of :func:`fit`.
 
     Parameters
@@ -239,6 +239,9 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         :func:`~voro3d.generators.initial_generators` of ``grid``. ``grid`` is then their finest
         spacing: the result's voxel; the kNN refresh distance of each generator is scaled by its
         nearest-neighbour distance in those voxels.
+    refresh_voxels : float, optional
+        The kNN candidates are searched again once a generator has moved this many voxels (at
+        most ``MAX_REFRESH_DISTANCE``); default ``REFRESH_VOXELS``.
 
     Returns
     -------
@@ -250,7 +253,7 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
     start = time.perf_counter()
     grid = grid_option(grid, allow_auto=False)
     schedule = fit_schedule(steps=steps, lr=lr, milestones=milestones, gamma=gamma, batch_fraction=batch_fraction,
-                            k=k, seed=seed, device=device)
+                            k=k, seed=seed, device=device, refresh_voxels=refresh_voxels)
     k = schedule["k"]
     samples = as_points(samples, "samples", min_count=4)
     threads = cpu_threads() if threads is None else positive_int(threads, "threads")
@@ -279,16 +282,21 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
 
 
 def fit_schedule(*, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 200, 250), gamma: float = 0.5,
-                 batch_fraction: float = 0.2, k: int = FIT_K, seed: int = 0, device: str = "cpu") -> dict:
+                 batch_fraction: float = 0.2, k: int = FIT_K, seed: int = 0, device: str = "cpu",
+                 refresh_voxels: float | None = None) -> dict:
     """The options of :func:`fit_samples`' loop, checked, defaults filled in: the keywords of
     :func:`optimise_generators` but ``threads`` and ``progress``.
 
     Raises
     ------
     ValueError
-        A step count, k or milestone that is not a positive int, lr not finite and positive, gamma
-        or batch_fraction outside (0, 1], or an unknown or unavailable device.
+        A step count, k or milestone that is not a positive int, lr not finite and positive,
+        refresh_voxels not positive, gamma or batch_fraction outside (0, 1], or an unknown or
+        unavailable device.
     """
+    refresh_voxels = REFRESH_VOXELS if refresh_voxels is None else refresh_voxels
+    if not refresh_voxels > 0:  # inf: never search again
+        raise ValueError(f"refresh_voxels must be a number > 0, got {refresh_voxels}")
     if not (np.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be a finite number > 0, got {lr}")
     if not 0 < gamma <= 1:
@@ -298,7 +306,7 @@ def fit_schedule(*, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 20
     return dict(steps=positive_int(steps, "steps"), lr=float(lr),
                 milestones=sorted(positive_int(step, "milestones") for step in milestones), gamma=float(gamma),
                 batch_fraction=float(batch_fraction), k=positive_int(k, "k", minimum=2), seed=seed,
-                device=_device(device))
+                device=_device(device), refresh_voxels=float(refresh_voxels))
 
 
 def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None) -> VoroMesh:
@@ -317,7 +325,8 @@ def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None) 
 
 def optimise_generators(samples: np.ndarray, generators: np.ndarray, grid: int, *, reach: np.ndarray | None,
                         steps: int, lr: float, milestones, gamma: float, batch_fraction: float, k: int, seed: int,
-                        device: str, threads: int, fixed: np.ndarray | None = None, progress: bool = False):
+                        device: str, threads: int, refresh_voxels: float,
+                        fixed: np.ndarray | None = None, progress: bool = False):
     """Adam on the VoroLoss of ``samples`` over ``generators``: the loop of :func:`fit_samples`, on checked inputs.
 
     Parameters
@@ -333,6 +342,8 @@ def optimise_generators(samples: np.ndarray, generators: np.ndarray, grid: int, 
         uniform band.
     steps, lr, milestones, gamma, batch_fraction, k, seed, device, threads, progress
         As in :func:`fit`; ``device`` checked, ``threads`` an int.
+    refresh_voxels : float
+        As in :func:`fit_samples`, checked.
     fixed : (n,) bool, optional
         Generators that stay where they are (their neighbours' cells still see them).
 
@@ -344,7 +355,7 @@ def optimise_generators(samples: np.ndarray, generators: np.ndarray, grid: int, 
     """
     start = time.perf_counter()
     schedule = dict(lr=lr, milestones=milestones, gamma=gamma, seed=seed,
-                    refresh_distance=min(REFRESH_VOXELS * grid_voxel(grid), MAX_REFRESH_DISTANCE), progress=progress)
+                    refresh_distance=min(refresh_voxels * grid_voxel(grid), MAX_REFRESH_DISTANCE), progress=progress)
     if device == "cpu" and _CPU_KERNEL:
         loop = KernelLoop(samples, generators, grid=grid, k=k, batch_fraction=batch_fraction, threads=threads,
                           reach=reach)

@@ -33,7 +33,7 @@ from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_norm
 from .surface import imls, target_surface, winding_level
 from .debris import drop_stray_cells
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
-from .tuning import (CLOUD_STEPS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
+from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE,
                      DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, HOLE_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE,
                      FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
@@ -190,7 +190,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         VoroLoss fit, or the ONNX network on the target's signed distance grid.
     steps, seed, device : int, int, str, optional
         As in :func:`voro3d.fit` (defaults ``CLOUD_STEPS`` = 200, 0, ``"cpu"``: a cloud's mesh is
-        fitted to its target afterwards); refused with ``method="learned"``, which uses none of them.
+        fitted to its target afterwards; its candidates are searched again after
+        ``CLOUD_REFRESH_VOXELS`` = 2.5 voxels of a move); refused with ``method="learned"``, which
+        uses none of them.
     model, threads
         As in :func:`voro3d.reconstruct`.
     progress : bool
@@ -252,6 +254,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     model = method_options(method, "learned", model=model).get("model")
     if method == "fit":
         fit_options.setdefault("steps", CLOUD_STEPS)
+        fit_options["refresh_voxels"] = CLOUD_REFRESH_VOXELS
 
     normal_plan = settle_normals(plan, normals is not None)
     if normal_plan == "estimate":

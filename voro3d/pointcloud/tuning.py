@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS"]
 
@@ -180,6 +180,15 @@ CLOUD_STEPS = 200
 # NC at worst -0.0008 on average, F1 within 0.0005; samples and fit 0.56-0.64x, the call 0.83-0.87x
 # the time. At 40: CD +0.5%, +3.2% at worst, NC -0.0019 on clean 100k, for 0.4x the fit.
 CLOUD_SAMPLES_PER_FACE = 75
+# kNN candidates of a cloud's fit searched again after a generator moved this many voxels (a mesh's
+# fit keeps fitting.REFRESH_VOXELS, 1.5; both at most fitting.MAX_REFRESH_DISTANCE, 2.5 voxels at 64^3).
+# 16 dev meshes at 10^5 true-normal points (grid "auto": 128 over 3 levels), 1.5 against 2.5: searches
+# 8-12 -> 5-8, fit CPU time 0.54-0.80x (8 of them), the call 0.89x; CD -0.4% to +0.6% (mean +0.1%), NC
+# within 0.0003, F1 -0.0008 to +0.0025, faces up to +2.5%. At 3.5 voxels (8 meshes): 3-5 searches, NC
+# down to -0.0011 and faces up to +4.4%. At grid 64 (the cap), 6 dev meshes x clean 20k / 0.5% noise /
+# 3-view range scans: searches 4-6 -> 2-3, fit CPU 0.61-1.04x; mean CD -0.1% / +0.5% / 0.0% (worst
+# +1.1%, on noise), NC at worst -0.0010 / -0.0008 / -0.0020.
+CLOUD_REFRESH_VOXELS = 2.5
 # A point the outlier tests suspect (preprocess.outlier_mask: sparse, or a stray) stays when it and its
 # 20 neighbours lie within SUSPECT_FLATNESS of their in-plane spread (RMS) of one plane, itself within
 # SUSPECT_OFFSET (the centre of a curved patch sits off the patch's plane by about twice its RMS): a
