@@ -560,8 +560,9 @@ def merge(sources, out: Path, folder: Path):
     rows = {}
     for r in (r for run in runs for r in run["rows"]):
         key = (r["shape"], r["condition"])
-        if not r.get("poisson") and key in rows:  # a --no-poisson run refreshes the VoroMesh side only
-            r = dict(r, poisson=rows[key]["poisson"])
+        for side in ("poisson", "alpha_wrap"):  # a --no-poisson run refreshes the VoroMesh side only
+            if not r.get(side) and rows.get(key, {}).get(side):
+                r = dict(r, **{side: rows[key][side]})
         rows[key] = r
     scans = {s["scan"]: s for run in runs for s in run["scans"]}
     # Each run keeps its date and loads; a merged file's own runs are flattened.
@@ -598,7 +599,7 @@ def main():
     parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
-                        "(later files win; a row without Poisson keeps the earlier file's Poisson)")
+                        "(later files win; a row without Poisson or alpha wrap keeps the earlier file's)")
     args = parser.parse_args()
     import multiprocessing
 

@@ -107,15 +107,16 @@ def settle_filter(plan: CloudPlan, *, smoothed: bool, noisy: bool, noise: float,
     return "on" if smoothed and noisy and noise > HEAVY_NOISE * 2.0 / 2**depth else "off"
 
 
-def sheet_if_closer(target, points, spacing: float, resolution: int):
+def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance=None):
     """The offset shell of the points when it fits them much better than ``target``, else None.
 
     Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
     ``SHEET_SURFACE_GATE``); kept when its :func:`_misfit` is under ``SHEET_WIN`` times the target's.
+    ``distance``: the (n,) distance of ``points`` to ``target``, when already measured.
     """
     from scipy.spatial import cKDTree
 
-    to_target = float(np.mean(target.distance(points)))
+    to_target = float(np.mean(target.distance(points) if distance is None else distance))
     if to_target <= SHEET_POINTS_GATE * spacing:
         return None
     tree = cKDTree(points)

@@ -349,13 +349,14 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     depth = poisson_depth(target_grid, stats.median_spacing if subset is None else None)
     resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
     filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
-    kind, target = _target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
-                           depth=depth, resolution=resolution, filtered=filtered == "on", dense=dense and denoise == "off")
+    kind, target, distance = _target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
+                                     depth=depth, resolution=resolution, filtered=filtered == "on",
+                                     dense=dense and denoise == "off")
     if kind == "sheet":
         framed = given
     if kind != "poisson":
         filtered = "off"
-    _check_coverage(target, framed, widths)
+    _check_coverage(target, framed, widths, distance=distance if framed is given else None)
     surface_vertices = target.project(target.vertices)
     plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind)
     seconds["surface"] = time.perf_counter() - start
@@ -430,11 +431,12 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
 
 def _target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
             resolution: int, filtered: bool, dense: bool):
-    """``(kind, target)``: the target surface of ``plan.target`` (``choice``), the ``"auto"`` rule of
-    :class:`~voro3d.pointcloud.plan.CloudPlan` when it is ``"auto"``. ``points`` are the points the
-    field is built from (smoothed or not), ``given`` the points as they came, for the shell."""
+    """``(kind, target, distance)``: the target surface of ``plan.target`` (``choice``), the ``"auto"``
+    rule of :class:`~voro3d.pointcloud.plan.CloudPlan` when it is ``"auto"``, and the (n,) distance of
+    ``given`` to it where the rule measured it (else None). ``points`` are the points the field is
+    built from (smoothed or not), ``given`` the points as they came, for the shell."""
     if choice == "sheet":
-        return "sheet", sheet_target(given, stats.median_spacing, resolution)
+        return "sheet", sheet_target(given, stats.median_spacing, resolution), None
     target = None
     if choice == "poisson" or (choice == "auto" and closed):
         target = poisson_surface(points, normals, depth,
@@ -450,16 +452,17 @@ def _target(choice: str, points, given, normals, widths, stats, *, level: float,
                                 hole_level=max(level, HOLE_LEVEL) if closed else None,
                                 depth=None if closed else SHELL_DEPTH)
     if choice == "auto" and not target.dense:
-        sheet = sheet_if_closer(target, given, stats.median_spacing, resolution)
-        if sheet is not None:
-            return "sheet", sheet
-    return kind, target
+        distance = target.distance(given)
+        sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance)
+        return ("sheet", sheet, None) if sheet is not None else (kind, target, distance)
+    return kind, target, None
 
 
-def _check_coverage(target, points, widths) -> None:
+def _check_coverage(target, points, widths, *, distance=None) -> None:
     """Refuse a target surface that misses the points: one that no volume behind them explains
-    (a one-sided scan of a thin or open structure) shrinks to blobs far from most points."""
-    distance = target.distance(points)
+    (a one-sided scan of a thin or open structure) shrinks to blobs far from most points.
+    ``distance``: the points' distance to the target, when already measured."""
+    distance = target.distance(points) if distance is None else distance
     covered = float(np.mean(distance <= 2.0 * widths + 2.0 / (target.resolution - 1)))
     if covered < MIN_COVERAGE:
         raise ValueError(f"no closed surface explains these points: only {100 * covered:.0f}% of them lie on the "
