@@ -295,7 +295,7 @@ def fit_schedule(*, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 20
         unavailable device.
     """
     refresh_voxels = REFRESH_VOXELS if refresh_voxels is None else refresh_voxels
-    if not refresh_voxels > 0:  # inf: never search again
+    if not refresh_voxels > 0:  # inf is allowed: MAX_REFRESH_DISTANCE then sets the distance
         raise ValueError(f"refresh_voxels must be a number > 0, got {refresh_voxels}")
     if not (np.isfinite(lr) and lr > 0):
         raise ValueError(f"lr must be a finite number > 0, got {lr}")
