@@ -22,7 +22,7 @@ setup(
         ),
         Pybind11Extension(
             "voro3d._fitkernel",
-            ["src/voro3d_fitkernel.cpp", "src/voro3d_winding.cpp"],
+            ["src/voro3d_fitkernel.cpp", "src/voro3d_winding.cpp", "src/voro3d_filter.cpp"],
             depends=["src/voro3d_parallel.h"],
             cxx_std=17,
             extra_compile_args=["-O3", "-pthread"],

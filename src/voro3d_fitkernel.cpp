@@ -430,9 +430,10 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
         const double local_reach = reach(x, local_lo, local_hi);
         const bool done = static_cast<std::int64_t>(best.size()) == k && best.back().first <= local_reach * local_reach;
         // Rings of cells around the sample's, each adding the cells of the next shell, until no
-        // unseen generator can be nearer than the k-th best.
-        for (std::int64_t ring = 0; !done; ++ring) {
-          if (ring == 0) best.clear();
+        // unseen generator can be nearer than the k-th best. The box holds every cell of the first
+        // kLocalRings rings, and best its k nearest there (members past the bound cannot be among
+        // them), so the rings go on from the next one.
+        for (std::int64_t ring = kLocalRings + 1; !done; ++ring) {
           std::int64_t lo[3], hi[3];
           for (int axis = 0; axis < 3; ++axis) {
             lo[axis] = std::max<std::int64_t>(0, centre[axis] - ring);
@@ -526,10 +527,12 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
 }  // namespace
 
 void register_winding(py::module_& module);  // voro3d_winding.cpp
+void register_filter(py::module_& module);   // voro3d_filter.cpp
 
 PYBIND11_MODULE(_fitkernel, module) {
-  module.doc() = "The VoroMesh fit's inner step on CPU: VoroLoss and its gradient in one threaded pass; point winding numbers.";
+  module.doc() = "The VoroMesh fit's inner step on CPU: VoroLoss and its gradient in one threaded pass; point winding numbers; bilateral normal filtering.";
   register_winding(module);
+  register_filter(module);
   module.def("voroloss", &voroloss, py::arg("samples"), py::arg("generators"), py::arg("candidates"),
              py::arg("grad") = py::none(), py::arg("threads") = 1,
              R"doc(VoroLoss of samples over their candidate generators, and optionally its gradient.

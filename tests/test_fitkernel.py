@@ -189,16 +189,18 @@ def test_nearest_generators_ties_go_to_the_lower_index():
     assert found.tolist() == [[0, 1, 2, 3]]
 
 
-def test_nearest_generators_of_samples_sorted_by_cell_with_ties():
+@pytest.mark.parametrize("cell", [0.25, 0.04])
+def test_nearest_generators_of_samples_sorted_by_cell_with_ties(cell):
     # Consecutive samples of one cell prune with the last sample's answer; on a lattice (exact ties
-    # everywhere) and off it, that must not change a single index.
+    # everywhere) and off it, that must not change a single index. With cells far smaller than the
+    # lattice the k nearest lie beyond the shared box, and the rings go on from its answer.
     rng = np.random.default_rng(5)
     lattice = np.stack(np.meshgrid(*[np.arange(-4.0, 5.0)] * 3, indexing="ij"), -1).reshape(-1, 3) / 4
     generators = rng.permutation(np.vstack([lattice, rng.uniform(-1, 1, (200, 3))]))
     samples = np.vstack([rng.integers(-8, 9, (1500, 3)) / 8, rng.uniform(-1, 1, (1500, 3))])
     # Each sample twice in a row: the second's bound is exactly its k-th distance, ties included.
-    samples = np.repeat(samples[np.lexsort(np.floor(samples / 0.25).T[::-1])], 2, axis=0)
-    found = _fitkernel.nearest_generators(samples, generators, 9, cell=0.25, threads=2)
+    samples = np.repeat(samples[np.lexsort(np.floor(samples / cell).T[::-1])], 2, axis=0)
+    found = _fitkernel.nearest_generators(samples, generators, 9, cell=cell, threads=2)
     squared = ((samples[:, None, :] - generators[None]) ** 2).sum(-1)
     expected = np.array([np.lexsort((np.arange(len(generators)), row))[:9] for row in squared])
     np.testing.assert_array_equal(found, expected)

@@ -267,6 +267,18 @@ def test_a_mesh_far_off_its_points_is_refused():
     _check_fit(shell, points, 0.05, offset=0.08)
 
 
+def test_a_mesh_whose_pieces_touch_along_an_edge_passes_the_fit_check():
+    # Two cells that meet along an edge only come out of the extraction with that edge's vertices
+    # split (closed and manifold by index); welded, the edge has four triangles.
+    from voro3d.reconstruction import _check_fit
+    from voro3d.watertight import check_watertight
+
+    pair = o3d.geometry.TriangleMesh.create_box() + o3d.geometry.TriangleMesh.create_box().translate([1.0, 1.0, 0.0])
+    assert check_watertight(pair).watertight
+    points, _ = sample_surface(pair, 2000, seed=0)
+    _check_fit(pair, points, 0.05)
+
+
 @pytest.mark.parametrize("make", [lambda grid: reconstruct(example_mesh(), grid), lambda grid: VoroMeshStage(grid)])
 @pytest.mark.parametrize("grid, error", [("fine", ValueError), (3, ValueError), (2.5, TypeError)])
 def test_one_grid_rule_for_the_function_and_the_stage(make, grid, error):

@@ -62,8 +62,15 @@ def open_edge_count(vertices: np.ndarray, triangles: np.ndarray) -> int:
     Welding first makes a triangle soup (an STL file) count as closed; triangles that welding
     collapses are dropped.
     """
-    _, weld = np.unique(vertices, axis=0, return_inverse=True)
-    welded = weld.reshape(-1)[triangles]
+    # Rows sorted once by (x, y, z): np.unique(axis=0) takes twice as long (0.18 s for a 190k-vertex
+    # Poisson target), and equal values weld whatever the sign of a zero.
+    order = np.lexsort(vertices.T[::-1])
+    ordered = vertices[order]
+    first = np.ones(len(vertices), bool)
+    first[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
+    weld = np.empty(len(vertices), np.int64)
+    weld[order] = np.cumsum(first) - 1
+    welded = weld[triangles]
     welded = welded[(welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])]
     return int((edge_counts(welded) != 2).sum())
 

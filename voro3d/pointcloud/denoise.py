@@ -59,20 +59,20 @@ def bilateral_filter(vertices, triangles, *, width: float, normal_width: float =
     """
     from scipy.spatial import cKDTree
 
+    from .. import _fitkernel
+    from .._system import available_cpus
+
     vertices = np.array(vertices, np.float64)
     triangles = np.asarray(triangles, np.int64)
     centroids, normals, areas = _face_frames(vertices, triangles)
     k = min(neighbours, len(triangles))
-    distance, near = (found.reshape(len(triangles), k) for found in cKDTree(centroids).query(centroids, k=k))
+    distance, near = (found.reshape(len(triangles), k)
+                      for found in cKDTree(centroids).query(centroids, k=k, workers=-1))
     spatial = (np.exp(-0.5 * (distance / width) ** 2) * areas[near]).astype(np.float32)
-    # float32: the gathered (t, k, 3) normals dominate the time and memory.
-    filtered = normals.astype(np.float32)
-    for _ in range(normal_passes):
-        gathered = filtered[near]
-        # |n_i - n_j|^2 = 2 - 2 n_i . n_j for unit normals.
-        weight = spatial * np.exp((np.einsum("tkd,td->tk", gathered, filtered) - 1.0) / normal_width ** 2)
-        summed = np.einsum("tk,tkd->td", weight, gathered)
-        filtered = summed / np.maximum(np.linalg.norm(summed, axis=1), 1e-30)[:, None]
+    # The compiled passes (float32 normals, double sums): 95k faces of a noisy bunny's target, 10
+    # passes, 0.2 s against numpy's 2.1 s, whose (t, k, 3) gathers took the time.
+    filtered = _fitkernel.bilateral_normals(normals.astype(np.float32), near, spatial, normal_width=normal_width,
+                                            passes=normal_passes, threads=available_cpus())
     filtered = filtered.astype(np.float64)
     n = len(vertices)
     faces_at = np.maximum(np.bincount(triangles.ravel(), minlength=n), 1).astype(np.float64)
