@@ -512,11 +512,23 @@ def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
 
     from voro3d.io import load_mesh
 
+    def complete(path: Path, wanted: list) -> bool:
+        # A merge on a machine that holds the meshes of some rows only would redraw a picture with
+        # those rows alone: the picture drawn from every row stays instead.
+        missing = [f.name for files in wanted for f in files if not f.exists()]
+        if missing and path.exists():
+            print(f"kept {path.name}: {len(missing)} of its meshes are not in {picture_dir} ({missing[0]}, ...)")
+        return not missing or not path.exists()
+
+    pictured = [(r, [picture_dir / f"{Path(r['shape']).stem}_{r['condition'].replace(' ', '_')}_{m}.ply"
+                     for m in ("voromesh", "poisson")])
+                for r in rows if r["shape"] in PICTURED and r["condition"] in PICTURED_CONDITIONS]
+    if not complete(out.with_suffix(".png"), [files for _, files in pictured]):
+        pictured = []
     figure = []
-    for r in rows:
-        stem, tag = Path(r["shape"]).stem, r["condition"].replace(" ", "_")
-        files = [picture_dir / f"{stem}_{tag}_{m}.ply" for m in ("voromesh", "poisson")]
-        if r["condition"] not in PICTURED_CONDITIONS or not all(f.exists() for f in files):
+    for r, files in pictured:
+        stem = Path(r["shape"]).stem
+        if not all(f.exists() for f in files):
             continue
         v, p = r["voromesh"], r["poisson"]
         figure.append(([load_mesh(folder / r["shape"])] + [load_mesh(f, weld=False) for f in files],
@@ -527,14 +539,18 @@ def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
         render_rows(figure, out.with_suffix(".png"))
     coloured = [(r, [picture_dir / f"{Path(r['shape']).stem}_{COLOURED.replace(' ', '_')}_{m}.ply"
                      for m in ("voromesh", "poisson")]) for r in rows if r["condition"] == COLOURED]
+    if not complete(out.parent / (out.name + "_colours.png"), [files for _, files in coloured]):
+        coloured = []
     coloured = [(r, files) for r, files in coloured if all(f.exists() for f in files)]
     if coloured:
         render_rows([([load_mesh(f, weld=False) for f in files],
                       [f"VoroMesh, colours carried ({Path(r['shape']).stem})", "Poisson, colours carried"])
                      for r, files in coloured], out.parent / (out.name + "_colours.png"))
+    scan_files = [[picture_dir / f"scan_{Path(s['scan']).stem}_{m}.ply" for m in ("voromesh", "poisson")] for s in scans]
+    if not complete(out.parent / (out.name + "_scans.png"), scan_files):
+        scans = []
     scan_rows = []
-    for s in scans:
-        files = [picture_dir / f"scan_{Path(s['scan']).stem}_{m}.ply" for m in ("voromesh", "poisson")]
+    for s, files in zip(scans, scan_files):
         if all(f.exists() for f in files):
             v, p = s["voromesh"], s["poisson"]
             ours, theirs = (load_mesh(f, weld=False) for f in files)
