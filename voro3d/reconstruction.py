@@ -244,20 +244,16 @@ def _check_fit(mesh, points, voxel: float, offset: float = 0.0) -> None:
     voxels beyond the ``offset`` its target keeps from them by design, ``PointCloudInfo.offset``)."""
     from scipy.spatial import ConvexHull
 
-    import open3d as o3d
-
-    from .geometry import raycasting_scene
+    from .queries import InsideOutside
     from .watertight import signed_volume
 
     ratio = signed_volume(np.asarray(mesh.vertices), np.asarray(mesh.triangles)) / ConvexHull(points).volume
     if ratio > MAX_HULL_VOLUME:
         raise ValueError(f"the reconstructed surface encloses {ratio:.1f} times the volume of the points' convex hull: "
                          "it balloons around the points instead of following them (normals that point every which way?)")
-    # A plain distance query: InsideOutside would weld the coincident vertices that the extraction
-    # splits where cells touch along an edge only, and refuse the mesh as non-manifold.
-    scene = raycasting_scene(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
-    distance = scene.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
-    distance = (float(np.median(distance)) - offset) / voxel
+    # allow_open: welded, the vertices the extraction splits where cells touch along an edge only
+    # read as a non-manifold edge, and a distance needs no inside.
+    distance = (float(np.median(InsideOutside(mesh, allow_open=True).unsigned_distance(points))) - offset) / voxel
     if distance > MAX_MEDIAN_DISTANCE:
         raise ValueError(f"the reconstructed surface lies {distance:.1f} voxels from the median point: it does not follow "
                          "the points")
