@@ -183,11 +183,13 @@ negated, true) against the same clouds without; given normals are checked and re
 inconsistent (`voro3d/pointcloud/normals.py`).""",
     "thin_walls": """\
 `benchmarks/bench_thin_walls.py`: a cup and a lid sampled on both sides of walls a few spacings
-thick, a failure measured, not fixed. At 5k-20k points the 16-neighbour plane fits span both sides
-(axes 14-33 degrees off), our orientation leaves 38-47% of the signs wrong, and the output is far off
-(CD 10-230 against 1-4 for Poisson on the true normals); with the true normals given, the noise
-estimate reads the other side as noise and the plan leaves Poisson (IMLS with smoothing, CD 8-51). At
-100k points the walls are 7-8 spacings thick and every figure matches Poisson's.""",
+thick. Without normals, a failure measured, not fixed: at 5k-20k points the 16-neighbour plane fits
+span both sides (axes 14-33 degrees off), our orientation leaves 38-47% of the signs wrong, and the
+output is far off (CD 10-230 against 1-4 for Poisson on the true normals). With the true normals
+given, the noise and the points' areas count only the neighbours on each point's own side, and every
+count matches Poisson on those normals (CD 4.24 / 1.43 / 1.32 and 4.18 / 1.05 / 0.86 against 4.20 /
+1.43 / 1.31 and 3.83 / 1.04 / 0.86; before, the far side read as noise and the plan left Poisson for
+a smoothed IMLS target, CD 8-51).""",
     "fit_speed": """\
 `benchmarks/bench_fit_speed.py` times the whole fit against another checkout, interleaved: on a
 quiet 2-core CPU 0.79 / 3.57 s per dev mesh at 32³ / 64³ on average, 18.7 s for the bunny at 128³

@@ -287,6 +287,28 @@ def test_point_areas_do_not_depend_on_the_block():
     assert np.array_equal(point_areas(points, tree=cKDTree(points)), expected)
 
 
+def test_point_areas_with_normals_count_only_their_own_side():
+    from scipy.spatial import cKDTree
+
+    from voro3d.queries import neighbour_table, point_areas
+
+    rng = np.random.default_rng(3)
+    side = rng.choice([0, 1], 4000)
+    plate = np.c_[rng.uniform(-1, 1, (4000, 2)), 0.01 * side]  # two sheets far closer than r_16
+    normals = np.zeros_like(plate)
+    normals[:, 2] = np.where(side == 1, 1.0, -1.0)
+    # Each side covers the 2 x 2 square: with the far side counted, its areas sum to about half of it.
+    both = point_areas(plate)
+    assert abs(both[side == 1].sum() / 4.0 - 0.5) < 0.1
+    areas = point_areas(plate, normals=normals)
+    for one in (0, 1):
+        assert 1.8 < areas[side == one].sum() / both[side == one].sum() < 2.2
+    distance, index = neighbour_table(cKDTree(plate), 21)
+    assert np.array_equal(point_areas(plate, distances=distance, indices=index, normals=normals, block=300), areas)
+    # One side, all normals agreeing: the areas of no normals.
+    assert np.array_equal(point_areas(plate, normals=np.tile([0.0, 0.0, 1.0], (4000, 1))), point_areas(plate))
+
+
 def _exact_point_winding(points, normals, areas, queries):
     difference = points[None] - queries[:, None]
     length = np.linalg.norm(difference, axis=2)

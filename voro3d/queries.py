@@ -367,7 +367,8 @@ def neighbour_table(tree, k: int) -> tuple[np.ndarray, np.ndarray]:
     return distance, neighbour
 
 
-def point_areas(points, *, k: int = 16, tree=None, block: int | None = None, distances=None) -> np.ndarray:
+def point_areas(points, *, k: int = 16, tree=None, block: int | None = None, distances=None, indices=None,
+                normals=None) -> np.ndarray:
     """Surface area each point of a cloud stands for, from its k-th neighbour distance.
 
     A disc of radius r_k around a point holds about k points, so each stands for
@@ -383,6 +384,14 @@ def point_areas(points, *, k: int = 16, tree=None, block: int | None = None, dis
     distances : (n, j) float64, optional
         Distances of a kNN query of ``points``, itself first (:func:`neighbour_table`), with
         ``j > k``: the radii are read from it instead of queried.
+    indices : (n, j) int64, optional
+        The neighbours of that query, for ``normals``.
+    normals : (n, 3) float, optional
+        Consistently oriented normals: the disc then holds only the neighbours whose normal
+        agrees in sign with the point's, ``pi r_k^2 / m`` for ``m`` of them. On a wall sampled on
+        both sides closer than ``r_k`` the other side's points are not this side's samples;
+        counted, they halve the areas, and the winding number reads about half its value (a cup
+        sampled with 5k points and its true normals: level 0.22 instead of 0.43, taken as open).
 
     Returns
     -------
@@ -392,13 +401,27 @@ def point_areas(points, *, k: int = 16, tree=None, block: int | None = None, dis
 
     points = as_points(points, "points", min_count=2)
     k = min(positive_int(k, "k", minimum=1), points.shape[0] - 1)
-    if distances is not None and distances.shape == (points.shape[0], distances.shape[1]) and distances.shape[1] > k:
-        return np.pi * distances[:, k] ** 2 / k
-    tree = cKDTree(points) if tree is None else tree
-    radius = np.empty(points.shape[0])
-    for rows, distance, _ in knn_blocks(tree, [k + 1], block=block):
-        radius[rows] = distance[:, 0]
-    return np.pi * radius**2 / k
+    table = distances is not None and distances.shape == (points.shape[0], distances.shape[1]) and distances.shape[1] > k
+    if normals is None:
+        if table:
+            return np.pi * distances[:, k] ** 2 / k
+        tree = cKDTree(points) if tree is None else tree
+        radius = np.empty(points.shape[0])
+        for rows, distance, _ in knn_blocks(tree, [k + 1], block=block):
+            radius[rows] = distance[:, 0]
+        return np.pi * radius**2 / k
+    normals = np.asarray(normals, np.float64)
+    if table and indices is not None and indices.shape == distances.shape:
+        step = block or 2**16
+        blocks = ((np.arange(first, min(first + step, points.shape[0])), distances[first:first + step, :k + 1],
+                   indices[first:first + step, :k + 1]) for first in range(0, points.shape[0], step))
+    else:
+        blocks = knn_blocks(cKDTree(points) if tree is None else tree, k + 1, block=block)
+    area = np.empty(points.shape[0])
+    for rows, distance, neighbour in blocks:
+        same = np.einsum("bkj,bj->bk", normals[neighbour[:, 1:]], normals[rows]) > 0
+        area[rows] = np.pi * distance[:, k] ** 2 / np.maximum(same.sum(axis=1), 1)
+    return area
 
 
 def point_winding_number(points, normals, queries, *, areas=None) -> np.ndarray:

@@ -108,7 +108,8 @@ class CloudStats:
     noise : float
         Estimated standard deviation of the points about the surface: the median over the points
         of the RMS distance of their ``NOISE_NEIGHBOURS`` neighbours to their best-fit plane
-        (a clean curved surface reads as a small noise, a fraction of the spacing).
+        (a clean curved surface reads as a small noise, a fraction of the spacing); with normals,
+        of the neighbours whose normal agrees in sign with the point's.
     fine_noise : float
         The same over ``SPACING_NEIGHBOURS`` neighbours, where curvature and sharp edges barely
         count: it tells a noisy cloud from a sparse clean one (clean dev clouds, 5k-100k
@@ -122,13 +123,16 @@ class CloudStats:
 
 
 def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTICS_SAMPLE,
-                neighbours=None) -> CloudStats:
+                neighbours=None, normals: np.ndarray | None = None) -> CloudStats:
     """Local spacing and noise level of ``(n, 3)`` points (see :class:`CloudStats`).
 
     The spacing is every point's; the noise is a median over the neighbourhoods of up to
     ``sample`` random points (None: all; ``STATISTICS_SAMPLE``, where it is measured).
     ``neighbours``: a :func:`~voro3d.queries.neighbour_table` of ``points`` with at least
-    ``SPACING_NEIGHBOURS + 1`` columns, to reuse (:func:`outlier_mask`'s).
+    ``SPACING_NEIGHBOURS + 1`` columns, to reuse (:func:`outlier_mask`'s). ``normals``: (n, 3)
+    consistently oriented normals, when known; a neighbour whose normal points against the
+    point's lies on the other side of a thin wall, and is left out of the noise (without them the
+    two sides of a wall a few spacings thick read as noise, see ``bench_thin_walls``).
     """
     from scipy.spatial import cKDTree
 
@@ -146,8 +150,10 @@ def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTIC
     del distance, neighbour
     noise, fine_noise = [], []
     for _, _, found in knn_blocks(tree, k + 1, sample=sample):
-        noise.append(_plane_residuals(points[found]))
-        fine_noise.append(_plane_residuals(points[found[:, :SPACING_NEIGHBOURS + 1]]))
+        side = None if normals is None else np.einsum("nkj,nj->nk", normals[found], normals[found[:, 0]]) > 0
+        noise.append(_plane_residuals(points[found], side))
+        fine_noise.append(_plane_residuals(points[found[:, :SPACING_NEIGHBOURS + 1]],
+                                           None if side is None else side[:, :SPACING_NEIGHBOURS + 1]))
     return CloudStats(spacing=spacing, median_spacing=float(np.median(spacing)), noise=_median_residual(noise),
                       fine_noise=_median_residual(fine_noise))
 
@@ -159,9 +165,14 @@ def _neighbour_median(values: np.ndarray, neighbour: np.ndarray, block: int = 2*
                            for start in range(0, len(neighbour), block)])
 
 
-def _plane_residuals(neighbourhoods: np.ndarray) -> np.ndarray:
-    """(n,) smallest covariance eigenvalue of (n, k, 3) neighbourhoods: the squared RMS distance to their best-fit plane."""
-    return np.linalg.eigvalsh(_centred_covariance(neighbourhoods)[1])[:, 0]
+def _plane_residuals(neighbourhoods: np.ndarray, members: np.ndarray | None = None) -> np.ndarray:
+    """(n,) smallest covariance eigenvalue of (n, k, 3) neighbourhoods: the squared RMS distance to
+    their best-fit plane; only over the (n, k) bool ``members`` of each, when given."""
+    if members is None:
+        return np.linalg.eigvalsh(_centred_covariance(neighbourhoods)[1])[:, 0]
+    weight = members / members.sum(axis=1, keepdims=True)
+    local = neighbourhoods - np.einsum("nk,nki->ni", weight, neighbourhoods)[:, None, :]
+    return np.linalg.eigvalsh(np.einsum("nk,nki,nkj->nij", weight, local, local))[:, 0]
 
 
 def _centred_covariance(neighbourhoods: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
