@@ -141,6 +141,11 @@ def _cap_box_holes(vertices, triangles):
     it lies on: a fan from its centroid, whose triangles' signed cover of the face is exactly the
     loop's inside (a fold of a non-convex loop is covered twice, once each way), for ray parity
     and winding number alike. Loops that do not lie on one axis-aligned plane are left as they are.
+    14 dev meshes (the 12 of bench_pointcloud, a cup, a lid) x range scans from 1 / 3 / 6 views, a
+    third missing, clean 5k, grid 64, without normals: 9 of 70 clouds changed; mean CD 283.7 / 58.6
+    / 16.6 / 398.0 / 22.6 -> 283.7 / 57.9 / 12.7 / 402.9 / 17.3, NC up or equal on all but one
+    (homer with a third missing: CD 397 -> 465, NC 0.933 -> 0.903, its spiky head end now cut flat
+    at the box; the others NC +0.001 to +0.025, CD -26% to +0.2%).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
