@@ -54,7 +54,10 @@ the points define (``voro3d/pointcloud/``):
      over the whole box averages noise over many points and caps holes smoothly; with our
      normals it beat our IMLS field on every sparse, noisy, holed and outlier-ridden dev cloud
      measured, and dense ones too. Pieces nearest to fewer than 1% of the points the best piece
-     has are debris and are dropped (a cloud of two real objects keeps both). A Poisson surface
+     has are debris and are dropped (a cloud of two real objects keeps both). Where the surface
+     runs on to the box Poisson solves in (an unseen hole whose rim's normals lead it outward) it
+     stops there open; it is capped on the box's face, so the target stays a closed solid and the
+     fit's labels do not scatter into fins about an open winding number. A Poisson surface
      that runs off more than 8% of the diagonal past the points (a flap: normals that disagree
      across a wall thinner than the spacing) is refused for the IMLS target below. Where the
      noise is over 0.85 octree cells (the dev clouds at 0.5% and 1% of the diagonal; 0.25% reads
