@@ -379,6 +379,23 @@ def test_a_poisson_surface_that_runs_into_its_box_is_capped_there():
     assert 0.9 < volume / (np.pi * 0.3**2 * 1.1) < 1.1  # the tube out to the box, 1.1 long
 
 
+def test_a_poisson_surface_that_runs_into_a_corner_of_its_box_is_capped_there():
+    # A tube along the box diagonal runs into two corners: its holes span three faces each (162
+    # open edges); the fans from the corners close them.
+    from voro3d.topology import open_edge_count
+
+    rng = np.random.default_rng(0)
+    angle, height = rng.uniform(0, 2 * np.pi, 8000), rng.uniform(-0.45, 0.45, 8000)
+    axis = np.ones(3) / np.sqrt(3)
+    across = np.cross(axis, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+    normals = np.cos(angle)[:, None] * across + np.sin(angle)[:, None] * np.cross(axis, across)
+    target = poisson_surface(0.25 * normals + height[:, None] * axis, normals, 6)
+    assert open_edge_count(target.vertices, target.triangles) == 0
+    assert target.inside(np.array([[0.0, 0.0, 0.0], [0.2, 0.2, 0.2]])).all()
+    assert not target.inside(np.array([[0.5, -0.5, 0.0], [0.45, 0.45, -0.45]])).any()
+
+
 def test_a_scan_whose_target_runs_into_its_box_has_no_fins(scans):
     # radar.xyz: two holes whose Poisson surface ran to the box, open; the fit's labels scattered
     # about the open winding number and grew fins up to 20 voxels off the target.
