@@ -401,11 +401,10 @@ def test_a_scan_whose_target_runs_into_its_box_has_no_fins(scans):
     # about the open winding number and grew fins up to 20 voxels off the target.
     cloud = o3d.io.read_point_cloud(str(scans / "radar.xyz"), format="xyz")
     shape, target, info = reconstruct_points(np.asarray(cloud.points), grid=32, steps=100)
+    from voro3d.geometry import raycasting_scene
+
     out = shape.to_open3d()
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh(o3d.core.Tensor(target.vertices.astype(np.float32)),
-                                                    o3d.core.Tensor(target.triangles.astype(np.int32))))
-    distance = scene.compute_distance(o3d.core.Tensor(np.asarray(out.vertices, np.float32))).numpy()
+    distance = raycasting_scene(target.vertices, target.triangles).compute_distance(o3d.core.Tensor(np.asarray(out.vertices, np.float32))).numpy()
     assert info.target == "poisson" and distance.max() < 2 * info.voxel
 
 
