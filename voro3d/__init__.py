@@ -40,7 +40,7 @@ One style for every public function (``tests/test_api.py`` walks them all and ch
   ``pointcloud.reconstruct_points``; ``run_batch(method="learned", steps=...)`` and
   ``run_batch(method="fit", model=...)``; ``plan`` with a mesh; ``voroloss(k=..., candidates=...)``;
   ``voro3d predict sdf.npy --grid 32``. So the fit's options of ``reconstruct`` default to None,
-  meaning the fit's own defaults (400 steps, 200 for a cloud, seed 0, ``"cpu"``). ``progress`` is taken by every
+  meaning the fit's own defaults (400 steps, 120 for a cloud, seed 0, ``"cpu"``). ``progress`` is taken by every
   method: it only asks to see whatever runs.
 - **Bad input** raises ``ValueError`` (or ``TypeError`` for a wrong type) naming the argument, what was
   expected and what arrived; the CLI prints it as one line and exits with status 2.

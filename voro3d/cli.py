@@ -296,7 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="direct VoroLoss fit (default) or the shipped learned model (ONNX)")
     # Fit options default to None: the fit's defaults apply, and --method learned refuses them.
     rebuild.add_argument("--steps", type=positive_argument,
-                         help="Adam steps of --method fit, default 400 for a mesh, 200 for a point cloud")
+                         help="Adam steps of --method fit, default 400 for a mesh, 120 for a point cloud")
     rebuild.add_argument("--seed", type=int, help="seed of --method fit, default 0")
     rebuild.add_argument("--device", help="cpu or cuda, for --method fit (default cpu)")
     rebuild.add_argument("--normals", choices=PLAN_FIELDS["normals"], default="auto",

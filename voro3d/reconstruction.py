@@ -67,7 +67,7 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     method : {"fit", "learned"}
         Direct optimisation (seconds) or the shipped ONNX network (fast, needs no torch).
     steps, seed, device : int, int, str, optional
-        The fit's Adam steps, seed and torch device (defaults 400 steps for a mesh, 200 for a
+        The fit's Adam steps, seed and torch device (defaults 400 steps for a mesh, 120 for a
         cloud, whose mesh is fitted to its target afterwards (``pointcloud.tuning.CLOUD_STEPS``),
         seed 0, ``"cpu"``). ``method="learned"`` uses none of them and refuses them.
     model : str or os.PathLike, optional

@@ -189,7 +189,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     method : {"fit", "learned"}
         VoroLoss fit, or the ONNX network on the target's signed distance grid.
     steps, seed, device : int, int, str, optional
-        As in :func:`voro3d.fit` (defaults ``CLOUD_STEPS`` = 200, 0, ``"cpu"``: a cloud's mesh is
+        As in :func:`voro3d.fit` (defaults ``CLOUD_STEPS`` = 120, 0, ``"cpu"``: a cloud's mesh is
         fitted to its target afterwards; its candidates are searched again after
         ``CLOUD_REFRESH_VOXELS`` = 2.5 voxels of a move); refused with ``method="learned"``, which
         uses none of them.

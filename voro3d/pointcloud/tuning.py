@@ -171,8 +171,14 @@ MAX_MEDIAN_DISTANCE = 1.0
 # which settles what the last steps would. 4 dev meshes x clean 20k / 0.5% noise / a third missing
 # at grid 64, 200 against 400 steps: CD +0.04% on average, +0.78% at worst (bunny clean), NC at
 # worst -0.0007, F1 within 0.001; the fit 0.67x and the whole call 0.84x the time. Bunny and fandisk
-# at 100k clean points and 3-view range scans: CD -0.9% to +0.8%, NC at worst -0.0018.
-CLOUD_STEPS = 200
+# at 100k clean points and 3-view range scans: CD -0.9% to +0.8%, NC at worst -0.0018. 120 against
+# 200 (2026-12-04): 6 dev meshes (bunny, fandisk, armadillo, abc_00000005, cow, thingi32_75655) x clean
+# 20k / 0.5% noise / a third missing / 3-view range scans at grid 64, mean CD +0.6% / -0.7% / -0.0% /
+# +0.0% (worst +1.6%, thingi32_75655 clean), NC -0.0002 to -0.0004 on average (worst -0.0012), F1
+# within 0.0001, the fit 0.72-0.80x; 6 dev meshes (armadillo, fandisk, abc_00000005 / 08, bunny,
+# screwdriver) at 10^5 true-normal points, grid "auto": CD -0.6% to +0.6%, NC at worst -0.0006, edge
+# F-score (bench_edges' measure) up on 5 of 6, mean 0.419 -> 0.454. At 80 steps NC fell by up to 0.0024.
+CLOUD_STEPS = 120
 # VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh
 # is fitted to the target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view
 # range scans at grid 64, 75 against 150 (benchmarks/results/cloud_samples.md): CD +0.1% to +0.4%
