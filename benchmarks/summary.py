@@ -174,8 +174,8 @@ VoroMesh outputs in two pieces (elephant with a third missing, spot from one vie
 of 2 and 4 islands (the elephant's trunk tip lies past the cut with no point joining it).""",
     "edges": """\
 `benchmarks/bench_edges.py`: sharp edges (NDC-style edge samples, F-score at 0.005) of the 11 CAD dev
-meshes from 200k oriented points. VoroMesh 0.355 on average against Poisson's 0.274 at depth 8 (the
-depth of our target) with 6-22x fewer faces than it, and 0.494 at depth 9 (10-79x more faces than
+meshes from 200k oriented points. VoroMesh 0.371 on average against Poisson's 0.266 at depth 8 (the
+depth of our target) with 5-22x fewer faces than it, and 0.500 at depth 9 (9-78x more faces than
 ours); at equal CD except abc_00000001, whose triangles are not consistently oriented.""",
     "given_normals": """\
 `benchmarks/bench_given_normals.py`: clouds with their own normals (from `estimate_normals()`,

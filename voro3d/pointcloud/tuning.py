@@ -178,6 +178,10 @@ MAX_MEDIAN_DISTANCE = 1.0
 # within 0.0001, the fit 0.72-0.80x; 6 dev meshes (armadillo, fandisk, abc_00000005 / 08, bunny,
 # screwdriver) at 10^5 true-normal points, grid "auto": CD -0.6% to +0.6%, NC at worst -0.0006, edge
 # F-score (bench_edges' measure) up on 5 of 6, mean 0.419 -> 0.454. At 80 steps NC fell by up to 0.0024.
+# What it costs: thin walls from dense oriented points converge less far. 5 CAD dev meshes at 2x10^5
+# true-normal points: the lid abc_00000007 NC 0.970 -> 0.964 and 12% more faces, the cup abc_00000009
+# NC 0.9943 -> 0.9916 and 13% more faces; abc_00000001, screwdriver and rocker-arm CD -2.6% to +0.3%,
+# NC at worst -0.0007 (bench_edges over its 11 meshes: edge F-score 0.355 -> 0.371).
 CLOUD_STEPS = 120
 # VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh
 # is fitted to the target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view
