@@ -285,7 +285,9 @@ struct CellGrid {
 constexpr double kCellsPerGenerator = 64.0;
 constexpr double kMaxCells = 16777216.0;
 
-CellGrid bucket(const std::vector<double>& sites, double cell) {
+// anchor: when finite, the cells' corners lie on anchor + j * cell on every axis (j integer), so
+// that samples sorted by the same cells (the fit's search order) meet each cell in one run.
+CellGrid bucket(const std::vector<double>& sites, double cell, double anchor) {
   const std::int64_t n = static_cast<std::int64_t>(sites.size() / 3);
   CellGrid grid;
   double top[3];
@@ -303,6 +305,13 @@ CellGrid bucket(const std::vector<double>& sites, double cell) {
   };
   while (cells_for(cell) > std::min(kMaxCells, kCellsPerGenerator * n)) cell *= 1.25;
   grid.cell = cell;
+  if (std::isfinite(anchor)) {
+    for (int axis = 0; axis < 3; ++axis) {
+      const double lowest = grid.origin[axis];
+      grid.origin[axis] = anchor + std::floor((lowest - anchor) / cell) * cell;
+      if (grid.origin[axis] > lowest) grid.origin[axis] -= cell;  // rounding: every site at or above it
+    }
+  }
   for (int axis = 0; axis < 3; ++axis) {
     grid.dims[axis] = static_cast<std::int64_t>(std::floor((top[axis] - grid.origin[axis]) / cell)) + 1;
   }
@@ -322,7 +331,7 @@ CellGrid bucket(const std::vector<double>& sites, double cell) {
 
 template <typename Real>
 py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::array& generators_in, std::int64_t k,
-                                       double cell, int threads, py::array_t<std::int32_t> result,
+                                       double cell, double anchor, int threads, py::array_t<std::int32_t> result,
                                        const std::int64_t* rows) {
   auto samples = py::reinterpret_borrow<py::array_t<Real>>(samples_in).template unchecked<2>();
   const std::int64_t m = samples.shape(0);
@@ -331,7 +340,7 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
   std::vector<std::int64_t> bad(std::max<std::int64_t>(1, (m + kBlock - 1) / kBlock), -1);
   {
     py::gil_scoped_release release;
-    const CellGrid grid = bucket(sites, cell);
+    const CellGrid grid = bucket(sites, cell, anchor);
     // Distance from x to the nearest face of the cell box [lo, hi] that is not on the grid's
     // border: no generator outside the box is nearer. +inf when the box is the whole grid.
     auto reach = [&](const double* x, const std::int64_t* lo, const std::int64_t* hi) {
@@ -471,8 +480,8 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
 }
 
 py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const py::object& generators_in,
-                                             std::int64_t k, double cell, int threads, const py::object& out_in,
-                                             const py::object& rows_in) {
+                                             std::int64_t k, double cell, const py::object& anchor_in, int threads,
+                                             const py::object& out_in, const py::object& rows_in) {
   py::array samples = as_array(samples_in, "samples");
   py::array generators = as_array(generators_in, "generators");
   check_shape(samples, "samples", "(m, 3)", 3);
@@ -486,6 +495,8 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
   if (n > std::numeric_limits<std::int32_t>::max()) throw py::value_error("generators must number under 2^31");
   if (!(std::isfinite(cell) && cell > 0)) throw py::value_error("cell must be a finite number > 0, got " + std::to_string(cell));
   if (threads < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(threads));
+  const double anchor = anchor_in.is_none() ? std::numeric_limits<double>::quiet_NaN() : anchor_in.cast<double>();
+  if (!anchor_in.is_none() && !std::isfinite(anchor)) throw py::value_error("anchor must be finite, got " + std::to_string(anchor));
   check_real_pair(samples, generators);
   // The answer goes to rows[s] of out when given (the fit's candidates, in the samples' own order,
   // while the search runs in spatial order): no gather of the whole answer afterwards.
@@ -520,8 +531,8 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
   }
   const std::int64_t* row_data = rows.empty() ? nullptr : rows.data();
   return py::isinstance<py::array_t<float>>(samples)
-             ? nearest_impl<float>(samples, generators, k, cell, threads, result, row_data)
-             : nearest_impl<double>(samples, generators, k, cell, threads, result, row_data);
+             ? nearest_impl<float>(samples, generators, k, cell, anchor, threads, result, row_data)
+             : nearest_impl<double>(samples, generators, k, cell, anchor, threads, result, row_data);
 }
 
 }  // namespace
@@ -567,7 +578,7 @@ TypeError
     Not arrays, or wrong dtypes.
 )doc");
   module.def("nearest_generators", &nearest_generators, py::arg("samples"), py::arg("generators"), py::arg("k"),
-             py::kw_only(), py::arg("cell"), py::arg("threads") = 1, py::arg("out") = py::none(),
+             py::kw_only(), py::arg("cell"), py::arg("anchor") = py::none(), py::arg("threads") = 1, py::arg("out") = py::none(),
              py::arg("rows") = py::none(),
              R"doc(Indices of the k generators nearest to each sample, nearest first (exact, ties to the lower index).
 
@@ -583,6 +594,11 @@ k : int
     In [1, n].
 cell : float
     Side of the bucket cells, > 0; only the speed depends on it.
+anchor : float, optional
+    Cells aligned to ``anchor + j * cell`` on every axis (j integer) instead of starting at the
+    generators' lowest coordinates. Samples passed in the order of these same cells meet each
+    cell in one run: the search is about twice as fast as when the cells straddle the order's
+    (a fit's generators have moved since the first search). Only the speed depends on it.
 threads : int
     Threads to use, >= 1.
 out : (r, k) int32 writeable C-contiguous array, optional
@@ -597,7 +613,7 @@ Returns
 Raises
 ------
 ValueError
-    Bad shapes, NaN or inf, k outside [1, n], cell <= 0, threads < 1, rows outside ``out`` or
+    Bad shapes, NaN or inf, k outside [1, n], cell <= 0, anchor not finite, threads < 1, rows outside ``out`` or
     repeated, ``out`` without ``rows`` or the other way round.
 TypeError
     Not arrays, or wrong dtypes.

@@ -160,13 +160,14 @@ def test_releases_the_gil(gil_free):
     assert longest < 0.5 * elapsed, (longest, elapsed)
 
 
+@pytest.mark.parametrize("anchor", [None, -1.0, 0.37, -1e3])
 @pytest.mark.parametrize("cell", [1e-4, 0.05, 0.3, 10.0])
-def test_nearest_generators_are_the_exact_knn(cell):
+def test_nearest_generators_are_the_exact_knn(cell, anchor):
     rng = np.random.default_rng(3)
     generators = rng.uniform(-1, 1, (500, 3))
     # Some samples outside the generators' box, where the grid's border cells are clamped.
     samples = rng.uniform(-1.5, 1.5, (4000, 3))
-    found = _fitkernel.nearest_generators(samples, generators, 11, cell=cell, threads=2)
+    found = _fitkernel.nearest_generators(samples, generators, 11, cell=cell, anchor=anchor, threads=2)
     _, expected = cKDTree(generators).query(samples, 11)
     assert found.dtype == np.int32 and found.shape == (4000, 11)
     np.testing.assert_array_equal(found, expected)
@@ -189,8 +190,9 @@ def test_nearest_generators_ties_go_to_the_lower_index():
     assert found.tolist() == [[0, 1, 2, 3]]
 
 
+@pytest.mark.parametrize("anchor", [None, -1.0])
 @pytest.mark.parametrize("cell", [0.25, 0.04])
-def test_nearest_generators_of_samples_sorted_by_cell_with_ties(cell):
+def test_nearest_generators_of_samples_sorted_by_cell_with_ties(cell, anchor):
     # Consecutive samples of one cell prune with the last sample's answer; on a lattice (exact ties
     # everywhere) and off it, that must not change a single index. With cells far smaller than the
     # lattice the k nearest lie beyond the shared box, and the rings go on from its answer.
@@ -200,7 +202,7 @@ def test_nearest_generators_of_samples_sorted_by_cell_with_ties(cell):
     samples = np.vstack([rng.integers(-8, 9, (1500, 3)) / 8, rng.uniform(-1, 1, (1500, 3))])
     # Each sample twice in a row: the second's bound is exactly its k-th distance, ties included.
     samples = np.repeat(samples[np.lexsort(np.floor(samples / cell).T[::-1])], 2, axis=0)
-    found = _fitkernel.nearest_generators(samples, generators, 9, cell=cell, threads=2)
+    found = _fitkernel.nearest_generators(samples, generators, 9, cell=cell, anchor=anchor, threads=2)
     squared = ((samples[:, None, :] - generators[None]) ** 2).sum(-1)
     expected = np.array([np.lexsort((np.arange(len(generators)), row))[:9] for row in squared])
     np.testing.assert_array_equal(found, expected)
@@ -238,6 +240,7 @@ def test_nearest_generators_bad_out(kwargs, error, match):
     (dict(k=0), ValueError, r"k must be in \[1, 10\] \(the number of generators\), got 0"),
     (dict(k=11), ValueError, r"k must be in \[1, 10\] \(the number of generators\), got 11"),
     (dict(cell=0.0), ValueError, "cell must be a finite number > 0"),
+    (dict(anchor=float("nan")), ValueError, "anchor must be finite"),
     (dict(cell=np.nan), ValueError, "cell must be a finite number > 0"),
     (dict(threads=0), ValueError, "threads must be >= 1, got 0"),
     (dict(samples=SAMPLES[:, :2]), ValueError, r"samples must have shape \(m, 3\), got \(20, 2\)"),

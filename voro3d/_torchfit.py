@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .fitloop import Adam, FitLoop, spatial_order
+from .geometry import grid_voxel
 
 __all__ = ["TorchLoop"]
 
@@ -29,7 +30,7 @@ class TorchLoop(FitLoop):
         self.k = min(k, generators.shape[0])
         self.reach = None if reach is None else torch.tensor(reach, device=device)
         # The samples never move, so they are sorted for the KD-tree once.
-        order = spatial_order(samples, grid)
+        order = spatial_order(samples, grid_voxel(grid))
         self.search_samples = np.ascontiguousarray(samples[order], dtype=np.float32)
         self.search_rank = torch.empty(order.size, dtype=torch.int64)
         self.search_rank[torch.from_numpy(order)] = torch.arange(order.size)

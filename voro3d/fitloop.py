@@ -19,11 +19,13 @@ import numpy as np
 __all__ = ["Adam", "FitLoop", "spatial_order"]
 
 
-def spatial_order(samples: np.ndarray, grid: int) -> np.ndarray:
-    """Sample indices sorted by grid voxel: kNN queries in this order find their data in cache
-    (1.5 times faster than the samples' random order with a KD-tree)."""
-    voxel = np.floor((samples + 1.0) * (grid - 1) / 2.0).astype(np.int64)
-    return np.argsort((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2], kind="stable")
+def spatial_order(samples: np.ndarray, cell: float) -> np.ndarray:
+    """Sample indices sorted by cubic cells of side ``cell`` with corners at ``-1 + j * cell`` (fit
+    frame): kNN queries in this order find their data in cache (1.5 times faster than the samples'
+    random order with a KD-tree)."""
+    voxel = np.maximum(np.floor((samples + 1.0) / cell), 0).astype(np.int64)
+    size = int(voxel.max()) + 1
+    return np.argsort((voxel[:, 0] * size + voxel[:, 1]) * size + voxel[:, 2], kind="stable")
 
 
 class Adam:
