@@ -396,6 +396,25 @@ def test_a_poisson_surface_that_runs_into_a_corner_of_its_box_is_capped_there():
     assert not target.inside(np.array([[0.5, -0.5, 0.0], [0.45, 0.45, -0.45]])).any()
 
 
+@pytest.mark.parametrize("up", [1.0, -1.0])
+def test_a_poisson_surface_across_its_box_is_capped_on_the_solid_side(up):
+    # A wavy wall across the box, its normals up (the solid below) or down: Poisson's surface runs
+    # into all four side faces, one loop around the box that no fan apex lies on all the faces of
+    # (234 open edges). The curtain down (or up) the side faces and the fan on the bottom (or top)
+    # close it round the solid's side only.
+    from voro3d.topology import open_edge_count
+
+    xy = np.random.default_rng(0).uniform(-0.5, 0.5, (8000, 2))
+    normals = np.c_[-0.3 * np.cos(3 * xy[:, 0]) * up, np.zeros(len(xy)), np.full(len(xy), up)]
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    target = poisson_surface(np.c_[xy, 0.1 * np.sin(3 * xy[:, 0])], normals, 6)
+    assert open_edge_count(target.vertices, target.triangles) == 0
+    solid, empty = np.array([[0.0, 0.0, -0.3], [0.2, 0.1, -0.2]]) * up, np.array([[0.0, 0.0, 0.3], [0.2, 0.1, 0.25]]) * up
+    assert target.inside(solid).all() and not target.inside(empty).any()
+    # The solid out to Poisson's cube: 1.1 wide, half of it 0.55 deep.
+    assert signed_volume(target.vertices, target.triangles) == pytest.approx(1.1**2 * 0.55, rel=0.02)
+
+
 def test_a_scan_whose_target_runs_into_its_box_has_no_fins(scans):
     # radar.xyz: two holes whose Poisson surface ran to the box, open; the fit's labels scattered
     # about the open winding number and grew fins up to 20 voxels off the target.
