@@ -106,7 +106,6 @@ def test_every_subcommand_has_help_and_an_example():
                 assert action.help, f"{name} {action.option_strings} has no help"
 
 
-
 def test_the_step_defaults_people_read_are_the_fits():
     # The CLI keeps its imports light, so its help states the cloud fit's default steps as a literal,
     # as do the two docstrings a user reads first: each must say what CLOUD_STEPS is.
@@ -119,6 +118,7 @@ def test_the_step_defaults_people_read_are_the_fits():
     assert f"400 steps for a mesh, {CLOUD_STEPS} for a" in " ".join(voro3d.reconstruct.__doc__.split())
     assert f"(400 steps, {CLOUD_STEPS} for a cloud," in voro3d.__doc__
     assert f"``CLOUD_STEPS`` = {CLOUD_STEPS}," in reconstruct_points.__doc__
+
 
 def test_python_dash_m_runs_the_command():
     done = subprocess.run([sys.executable, "-m", "voro3d", "--help"], capture_output=True, text=True, timeout=60)

@@ -27,6 +27,9 @@ __all__ = ["PoissonSurface", "poisson_surface", "poisson_depth"]
 # Octree levels per grid: the Poisson mesh is about four times finer than the VoroMesh grid, so
 # its chord error stays well under a voxel (depth 7 and 8 measured within 4% CD of each other).
 MIN_DEPTH, MAX_DEPTH = 6, 10
+# The cube Poisson solves in is this many times the points' longest side (Open3D's default ``scale``),
+# passed to it and read back by the box caps (:func:`_octree_box`).
+OCTREE_SCALE = 1.1
 
 
 def poisson_depth(grid: int, spacing: float | None = None) -> int:
@@ -118,7 +121,8 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     # One thread: Open3D's parallel solver sums in varying order and the surface then moves
     # by float rounding from run to run; seeded runs must repeat exactly.
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, n_threads=1)
+        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, scale=OCTREE_SCALE,
+                                                                            n_threads=1)
     vertices = np.asarray(mesh.vertices, np.float64)
     triangles = np.asarray(mesh.triangles, np.int64)
     if triangles.shape[0] == 0:
@@ -130,10 +134,10 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
 
 
 def _octree_box(points) -> tuple[np.ndarray, np.ndarray]:
-    """The cube Poisson solves in: about the centre of the points' bounding box, 1.1 times its
-    longest side (Open3D's ``scale``), as ``(low, high)`` corners."""
+    """The cube Poisson solves in: about the centre of the points' bounding box, ``OCTREE_SCALE``
+    times its longest side, as ``(low, high)`` corners."""
     low, high = points.min(axis=0), points.max(axis=0)
-    half = 0.55 * float((high - low).max())
+    half = 0.5 * OCTREE_SCALE * float((high - low).max())
     return 0.5 * (low + high) - half, 0.5 * (low + high) + half
 
 
@@ -223,11 +227,12 @@ def _cap_box_holes(vertices, triangles, box):
     if centres:
         vertices, triangles = np.vstack([vertices, centres]), np.vstack([triangles, *caps])
     if len(belts) == 1:
+        belt_a, belt_b, touched_low, touched_high = belts[0]
         for axis in range(3):
-            for bound, blocked in ((high, belts[0][2]), (low, belts[0][3])):
+            for bound, blocked in ((high, touched_low), (low, touched_high)):
                 if blocked[axis]:
                     continue  # the loop reaches round to the opposite face: the curtain would cross the box
-                capped = _belt_cap(vertices, triangles, *belts[0][:2], axis, bound[axis], tolerance)
+                capped = _belt_cap(vertices, triangles, belt_a, belt_b, axis, bound[axis], tolerance)
                 if signed_volume(*capped) > 0:
                     return capped
     return vertices, triangles
