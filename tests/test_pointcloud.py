@@ -1,4 +1,5 @@
 """voro3d.pointcloud: clouds as they come (sparse, noisy, outliers, holes, colours, real scans)."""
+import os
 import warnings
 
 import numpy as np
@@ -413,6 +414,63 @@ def test_a_poisson_surface_across_its_box_is_capped_on_the_solid_side(up):
     assert target.inside(solid).all() and not target.inside(empty).any()
     # The solid out to Poisson's cube: 1.1 wide, half of it 0.55 deep.
     assert signed_volume(target.vertices, target.triangles) == pytest.approx(1.1**2 * 0.55, rel=0.02)
+
+
+def _torus_cloud(count: int):
+    """Oriented points on a torus (radii 0.5 and 0.2) about z."""
+    rng = np.random.default_rng(3)
+    u, v = rng.uniform(0, 2 * np.pi, (2, count))
+    normals = np.c_[np.cos(u) * np.cos(v), np.sin(u) * np.cos(v), np.sin(v)]
+    return np.c_[0.5 * np.cos(u), 0.5 * np.sin(u), np.zeros(count)] + 0.2 * normals, normals
+
+
+def test_a_split_poisson_surface_is_the_same_with_or_without_its_helper_and_follows_the_whole(monkeypatch):
+    # Split from 3,000 points here: the half solved in the helper process and the half solved here
+    # give the same bits, and the two halves follow the surface solved whole within a fraction of a
+    # cell and agree with it on which side a point lies.
+    import open3d as o3d
+
+    from voro3d.geometry import raycasting_scene
+    from voro3d.pointcloud import poisson
+    from voro3d.pointcloud.poisson import PoissonHelper
+
+    points, normals = _torus_cloud(6000)
+    whole = poisson_surface(points, normals, 6)
+    monkeypatch.setattr(poisson, "SPLIT_POINTS", 3000)
+    with PoissonHelper() as helper:
+        split = poisson_surface(points, normals, 6, helper=helper)
+    alone = poisson_surface(points, normals, 6)
+    assert split.cut is not None and split.cut[0] in (0, 1)  # the torus's longest axes
+    assert np.array_equal(split.vertices, alone.vertices) and np.array_equal(split.triangles, alone.triangles)
+    cell = poisson.OCTREE_SCALE * np.ptp(points, axis=0).max() / 2**6
+    scene = raycasting_scene(whole.vertices, whole.triangles)
+    off = scene.compute_distance(o3d.core.Tensor(split.vertices.astype(np.float32))).numpy()
+    assert off.max() < 0.5 * cell
+    # Each side's triangles only, and both sides present.
+    centre = split.vertices[split.triangles, split.cut[0]].mean(axis=1)
+    assert (centre < split.cut[1]).any() and (centre >= split.cut[1]).any()
+    queries = np.random.default_rng(4).uniform(-0.75, 0.75, (4000, 3))
+    clear = scene.compute_distance(o3d.core.Tensor(queries.astype(np.float32))).numpy() > cell
+    assert np.array_equal(split.inside(queries[clear]), whole.inside(queries[clear]))
+
+
+def test_a_poisson_helper_that_died_leaves_the_half_to_this_process(monkeypatch):
+    from voro3d.pointcloud import poisson
+    from voro3d.pointcloud.poisson import PoissonHelper
+
+    points, normals = _torus_cloud(6000)
+    monkeypatch.setattr(poisson, "SPLIT_POINTS", 3000)
+    helper = PoissonHelper()
+    folder = helper._folder
+    helper._process.kill()
+    helper._process.wait()
+    try:
+        split = poisson_surface(points, normals, 6, helper=helper)
+    finally:
+        helper.close()
+    alone = poisson_surface(points, normals, 6)
+    assert np.array_equal(split.vertices, alone.vertices)
+    assert not os.path.exists(folder)
 
 
 def test_a_scan_whose_target_runs_into_its_box_has_no_fins(scans):

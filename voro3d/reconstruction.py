@@ -74,6 +74,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         ``method="learned"``: an ONNX model of ``voro3d export-onnx``; default the shipped one.
     threads : int, optional
         Threads of the fit's CPU kernel or of onnxruntime; default every CPU the process may use.
+        With 1, a large cloud's Poisson target is not solved in a second process either (the same
+        mesh, solved in turn).
     plan : voro3d.pointcloud.CloudPlan, dict or None
         Point clouds: what to do with them (:class:`voro3d.pointcloud.CloudPlan`): ``normals``
         (``"check"`` the given ones, ``"trust"`` them, or ``"estimate"``), ``denoise`` (the pass

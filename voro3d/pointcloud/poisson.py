@@ -11,18 +11,28 @@ triangles) come from the Voronoi extraction, which Poisson's mesh does not give.
 
 Open, one-sided scans keep the IMLS target (:mod:`voro3d.pointcloud.surface`): Poisson would
 wrap them in a balloon that no point supports.
+
+Open3D's solver runs on one thread here (its parallel one gives a different surface on every run)
+and holds the interpreter while it runs; a large cloud is solved in two halves at once, the second
+in a :class:`PoissonHelper` process (:func:`poisson_surface`).
 """
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .denoise import bilateral_filter
 from .fields import supported_pieces
-from .tuning import TARGET_CELL_SPACINGS
+from .tuning import SPLIT_MARGIN_CELLS, SPLIT_POINTS, TARGET_CELL_SPACINGS
 
-__all__ = ["PoissonSurface", "poisson_surface", "poisson_depth"]
+__all__ = ["PoissonHelper", "PoissonSurface", "poisson_depth", "poisson_helper", "poisson_surface"]
 
 # Octree levels per grid: the Poisson mesh is about four times finer than the VoroMesh grid, so
 # its chord error stays well under a voxel (depth 7 and 8 measured within 4% CD of each other).
@@ -52,22 +62,38 @@ class PoissonSurface:
         Outward; the pieces that the points do not support are removed.
     resolution : int
         Octree resolution (``2^depth``): the mesh's detail scale is ``2 / resolution``.
+    cut : (int, float) or None
+        Of a surface solved in two halves (:func:`poisson_surface`): the axis and coordinate of
+        the plane between them. ``vertices, triangles`` are then each half's triangles on its
+        own side of it, which meet along the plane within a fraction of an octree cell.
+    halves : tuple of two (vertices, triangles)
+        Of a split surface: each half's whole closed mesh, which decides inside on its side.
     """
 
     vertices: np.ndarray
     triangles: np.ndarray
     resolution: int
+    cut: tuple[int, float] | None = None
+    halves: tuple = field(default=(), repr=False)
     dense: bool = field(default=False, init=False)
 
     def __post_init__(self):
         from ..queries import InsideOutside
 
         self._query = InsideOutside((self.vertices, self.triangles), allow_open=True)
+        self._halves = [InsideOutside(half, allow_open=True) for half in self.halves]
 
     def inside(self, queries: np.ndarray) -> np.ndarray:
         """(q, 3) fit-frame points -> (q,) bool: inside the mesh (ray parity, winding number
-        where it is not closed)."""
-        return self._query.occupancy(queries)
+        where it is not closed); of a split surface, inside the whole half on the query's side."""
+        if self.cut is None:
+            return self._query.occupancy(queries)
+        queries = np.asarray(queries, np.float64)
+        low = queries[:, self.cut[0]] < self.cut[1]
+        inside = np.empty(queries.shape[0], bool)
+        inside[low] = self._halves[0].occupancy(queries[low])
+        inside[~low] = self._halves[1].occupancy(queries[~low])
+        return inside
 
     def distance(self, queries: np.ndarray) -> np.ndarray:
         """(q, 3) fit-frame points -> (q,) float64 distance to the mesh."""
@@ -92,8 +118,17 @@ class PoissonSurface:
 
 
 def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
-                    filter_width: float | None = None) -> PoissonSurface:
+                    filter_width: float | None = None, helper: PoissonHelper | None = None) -> PoissonSurface:
     """Screened Poisson surface of oriented points, without its unsupported pieces.
+
+    From ``SPLIT_POINTS`` points on, it is solved in two halves at once, one in ``helper``'s
+    process: Open3D's solver runs on one thread here (its parallel sums vary from run to run, and
+    seeded runs must repeat exactly) and holds the interpreter while it runs, so a second process
+    is the way to the second core. The points are cut at their median along their box's longest
+    axis; each half takes the points up to ``SPLIT_MARGIN_CELLS`` octree cells past the cut and is
+    solved in a cube as large as the whole cloud's, at the same depth, and keeps its triangles
+    on its own side. Whether a cloud is split depends on its size alone: with or without a
+    helper, the surface is the same.
 
     Parameters
     ----------
@@ -104,6 +139,8 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     filter_width : float, optional
         Bilateral normal filtering of the mesh at this spatial width, fit frame
         (:func:`~voro3d.pointcloud.denoise.bilateral_filter`), for heavily noisy points.
+    helper : PoissonHelper, optional
+        Where the second half is solved; without one, both halves are solved here in turn.
 
     Returns
     -------
@@ -114,6 +151,29 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     ValueError
         Poisson returned no surface.
     """
+    if points.shape[0] < SPLIT_POINTS:
+        return PoissonSurface(*_half(points, normals, depth, OCTREE_SCALE, filter_width), resolution=2**depth)
+    side = float(np.ptp(points, axis=0).max())
+    axis = int(np.argmax(np.ptp(points, axis=0)))
+    cut = float(np.median(points[:, axis]))
+    margin = SPLIT_MARGIN_CELLS * OCTREE_SCALE * side / 2**depth
+    sides = (points[:, axis] < cut + margin, points[:, axis] > cut - margin)
+    # Each half's cube is the whole cloud's size, so that both solve at the whole cloud's cell size.
+    scales = [OCTREE_SCALE * side / float(np.ptp(points[chosen], axis=0).max()) for chosen in sides]
+    jobs = [(points[chosen], normals[chosen], depth, scale, filter_width) for chosen, scale in zip(sides, scales)]
+    if helper is not None:
+        helper.submit(*jobs[1])
+    first = _half(*jobs[0])
+    second = None if helper is None else helper.result()
+    halves = [first, _half(*jobs[1]) if second is None else second]
+    kept = [_side(*halves[0], axis, cut, low=True), _side(*halves[1], axis, cut, low=False)]
+    vertices = np.vstack([kept[0][0], kept[1][0]])
+    triangles = np.vstack([kept[0][1], kept[1][1] + kept[0][0].shape[0]])
+    return PoissonSurface(vertices, triangles, resolution=2**depth, cut=(axis, cut), halves=tuple(halves))
+
+
+def _solve(points, normals, depth: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Open3D's screened Poisson mesh of oriented points, on one thread, as ``(vertices, triangles)``."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
@@ -121,23 +181,137 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     # One thread: Open3D's parallel solver sums in varying order and the surface then moves
     # by float rounding from run to run; seeded runs must repeat exactly.
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, scale=OCTREE_SCALE,
+        mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, scale=scale,
                                                                             n_threads=1)
-    vertices = np.asarray(mesh.vertices, np.float64)
-    triangles = np.asarray(mesh.triangles, np.int64)
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int64)
+
+
+def _half(points, normals, depth: int, scale: float, filter_width: float | None):
+    """One half of a split surface (or a whole one, at ``OCTREE_SCALE``): solved and finished."""
+    return _finished(_solve(points, normals, depth, scale), points, scale, filter_width)
+
+
+def _finished(mesh, points, scale: float, filter_width: float | None):
+    """A Poisson mesh of ``points`` (solved at ``scale``) closed at its box and without its
+    unsupported pieces, filtered where ``filter_width`` is given."""
+    vertices, triangles = mesh
     if triangles.shape[0] == 0:
         raise ValueError("screened Poisson found no surface in the points")
-    vertices, triangles = _supported_pieces(*_cap_box_holes(vertices, triangles, _octree_box(points)), points)
+    vertices, triangles = _supported_pieces(*_cap_box_holes(vertices, triangles, _octree_box(points, scale)), points)
     if filter_width is not None:
         vertices = bilateral_filter(vertices, triangles, width=filter_width)
-    return PoissonSurface(vertices, triangles, resolution=2**depth)
+    return vertices, triangles
 
 
-def _octree_box(points) -> tuple[np.ndarray, np.ndarray]:
-    """The cube Poisson solves in: about the centre of the points' bounding box, ``OCTREE_SCALE``
-    times its longest side, as ``(low, high)`` corners."""
+def _side(vertices, triangles, axis: int, cut: float, *, low: bool):
+    """The triangles whose centroid lies below (``low``) or above ``cut`` on ``axis``, with their vertices."""
+    centre = vertices[triangles, axis].mean(axis=1)
+    triangles = triangles[centre < cut] if low else triangles[centre >= cut]
+    used = np.zeros(vertices.shape[0], bool)
+    used[triangles] = True
+    return vertices[used], (np.cumsum(used) - 1)[triangles]
+
+
+class PoissonHelper:
+    """A second Python process that solves one half of a split Poisson target (:func:`poisson_surface`).
+
+    Started early (it imports Open3D while the cloud is analysed), given one job by
+    :meth:`submit`, and ended by :meth:`close` (also as a context manager), which removes its
+    files whether or not it was used. A helper that fails gives no result (:meth:`result` returns
+    None) and the half is solved in the calling process instead: the same surface either way.
+    """
+
+    def __init__(self):
+        self._folder = tempfile.mkdtemp(prefix="voro3d-poisson-")
+        self._log = open(os.path.join(self._folder, "log"), "wb")
+        self._output = None
+        # The child finds voro3d and Open3D where this process found them.
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(path for path in sys.path if path))
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-c", "from voro3d.pointcloud.poisson import _serve; _serve()"],
+                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log, env=env)
+        except OSError:  # no interpreter to start: the half is solved here
+            self._process = None
+
+    def submit(self, points, normals, depth: int, scale: float, filter_width: float | None) -> None:
+        """Start solving and finishing one half (``_half(points, normals, depth, scale, filter_width)``)."""
+        if self._process is None:
+            return
+        source = os.path.join(self._folder, "points.npy")
+        self._output = os.path.join(self._folder, "mesh.npz")
+        np.save(source, np.hstack([points, normals]))
+        try:
+            self._process.stdin.write((json.dumps(dict(source=source, output=self._output, depth=depth, scale=scale,
+                                                       filter_width=filter_width)) + "\n").encode())
+            self._process.stdin.close()
+        except OSError:  # the helper has died: result() gives None
+            pass
+
+    def result(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The submitted job's ``(vertices, triangles)``, or None if the helper failed."""
+        if self._process is None or self._process.wait() != 0 or self._output is None \
+                or not os.path.exists(self._output):
+            return None
+        with np.load(self._output) as mesh:
+            return mesh["vertices"], mesh["triangles"]
+
+    def close(self) -> None:
+        import shutil
+
+        if self._process is not None:
+            if self._process.poll() is None:
+                self._process.kill()
+                self._process.wait()
+            try:
+                self._process.stdin.close()
+            except OSError:  # unsent data to a helper that died
+                pass
+        self._log.close()
+        shutil.rmtree(self._folder, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+@contextmanager
+def poisson_helper(count: int, threads: int | None, *, wanted: bool = True):
+    """A started :class:`PoissonHelper` (closed on exit) where the target of a cloud of ``count``
+    points may be a split Poisson surface (``wanted``: the plan allows a Poisson target) and a
+    second core may be used (``threads`` is not 1); else None."""
+    from .._system import available_cpus
+
+    if not wanted or count < SPLIT_POINTS or threads == 1 or available_cpus() < 2:
+        yield None
+        return
+    with PoissonHelper() as helper:
+        yield helper
+
+
+def _serve() -> None:
+    """The helper process: import what a half needs, then solve and finish the one job read from stdin."""
+    import open3d  # noqa: F401  (imported while the caller analyses its cloud)
+    import scipy.spatial  # noqa: F401  (for _finished)
+
+    line = sys.stdin.readline()
+    if not line:
+        return
+    job = json.loads(line)
+    data = np.load(job["source"])
+    vertices, triangles = _half(data[:, :3], data[:, 3:], job["depth"], job["scale"], job["filter_width"])
+    partial = job["output"] + ".part.npz"
+    np.savez(partial, vertices=vertices, triangles=triangles)
+    os.replace(partial, job["output"])
+
+
+def _octree_box(points, scale: float = OCTREE_SCALE) -> tuple[np.ndarray, np.ndarray]:
+    """The cube Poisson solves in: about the centre of the points' bounding box, ``scale`` times
+    its longest side, as ``(low, high)`` corners."""
     low, high = points.min(axis=0), points.max(axis=0)
-    half = 0.5 * OCTREE_SCALE * float((high - low).max())
+    half = 0.5 * scale * float((high - low).max())
     return 0.5 * (low + high) - half, 0.5 * (low + high) + half
 
 

@@ -27,7 +27,7 @@ from ..geometry import grid_voxel
 from .normals import estimate_normals, orient_normals, sign_disagreement
 from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
                          outlier_mask, outlier_neighbours)
-from .poisson import poisson_depth, poisson_surface
+from .poisson import poisson_depth, poisson_helper, poisson_surface
 from .resolution import choose_grid, fit_band, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_normals, sheet_if_closer, sheet_target
 from .surface import imls, target_surface, winding_level
@@ -162,7 +162,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        moves the points onto the smooth surface and replaces their normals with the field's.
     4. The target, without the pieces the points do not support: screened Poisson when the
        points enclose a volume (their winding level is over ``CLOSED_LEVEL``; bilateral-filtered
-       where the noise is over ``HEAVY_NOISE`` octree cells, :mod:`~voro3d.pointcloud.denoise`); for an open,
+       where the noise is over ``HEAVY_NOISE`` octree cells, :mod:`~voro3d.pointcloud.denoise`; from
+       ``SPLIT_POINTS`` points on, solved in two halves at once, one in a second process started
+       with the call, :func:`~voro3d.pointcloud.poisson.poisson_surface`); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
        held within ``SHELL_DEPTH`` of the points where they do not enclose it (a shell under the
        seen side, not a block out to the box), on a grid twice as fine as the VoroMesh grid,
@@ -230,14 +232,15 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         normals = np.asarray(normals, np.float64)
         if normals.shape != points.shape:
             raise ValueError(f"normals must have the points' shape {points.shape}, got {normals.shape}")
-    with trusted():
+    plan = as_plan(plan)
+    with trusted(), poisson_helper(points.shape[0], threads, wanted=plan.target not in ("imls", "sheet")) as helper:
         return _reconstruct_points(points, normals, grid=grid, method=method, steps=steps, seed=seed, device=device,
-                                   model=model, threads=threads, plan=as_plan(plan), engine=engine, workers=workers,
-                                   progress=progress)
+                                   model=model, threads=threads, plan=plan, engine=engine, workers=workers,
+                                   progress=progress, helper=helper)
 
 
 def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, model, threads, plan, engine, workers,
-                        progress):
+                        progress, helper):
     """:func:`reconstruct_points` on checked inputs."""
     from scipy.spatial import cKDTree
 
@@ -362,7 +365,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
     kind, target, distance = _target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
                                      depth=depth, resolution=resolution, filtered=filtered == "on",
-                                     dense=dense and denoise == "off")
+                                     dense=dense and denoise == "off", helper=helper)
     if kind == "sheet":
         framed = given
     if kind != "poisson":
@@ -441,17 +444,18 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
 
 
 def _target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
-            resolution: int, filtered: bool, dense: bool):
+            resolution: int, filtered: bool, dense: bool, helper):
     """``(kind, target, distance)``: the target surface of ``plan.target`` (``choice``), the ``"auto"``
     rule of :class:`~voro3d.pointcloud.plan.CloudPlan` when it is ``"auto"``, and the (n,) distance of
     ``given`` to it where the rule measured it (else None). ``points`` are the points the field is
-    built from (smoothed or not), ``given`` the points as they came, for the shell."""
+    built from (smoothed or not), ``given`` the points as they came, for the shell; ``helper``
+    solves half of a split Poisson surface (:func:`~voro3d.pointcloud.poisson.poisson_surface`)."""
     if choice == "sheet":
         return "sheet", sheet_target(given, stats.median_spacing, resolution), None
     target = None
     if choice == "poisson" or (choice == "auto" and closed):
         target = poisson_surface(points, normals, depth,
-                                 filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None)
+                                 filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None, helper=helper)
         if choice == "auto" and target.escape(points) > MAX_POISSON_ESCAPE:
             # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
             target = None

@@ -6,7 +6,7 @@ terms (diagonal 2) unless said otherwise. A number stays here only with a measur
 
 __all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
-           "SEAM_WIDTH", "SEAM_STEPS"]
+           "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS"]
 
 # Kernel width of a point: this many local spacings, or this many noise standard deviations.
 # Sparse clean clouds (no noise, under MAX_TRUSTED_OUTLIERS of strays) get the narrower width:
@@ -247,3 +247,27 @@ TILE_MARGIN = 2.0
 # 0.6035 / 0.9784, 0.6007 / 0.9786; 8 tiles without 0.6349, 0.6386, with 0.6039 / 0.9786, 0.6022 / 0.9790.
 SEAM_WIDTH = 1.0
 SEAM_STEPS = 100
+# A Poisson target of at least SPLIT_POINTS points is solved in two halves at once, in two processes
+# (voro3d.pointcloud.poisson.poisson_surface: Open3D's solver must run on one thread to repeat
+# exactly, and holds the interpreter). poisson_surface alone at depth 8, whole against split with
+# a started helper (2026-12-04, shared machine): armadillo 30k / 50k / 70k / 100k points 2.97 /
+# 4.41 / 4.50 / 5.13 s -> 2.14 / 3.36 / 3.73 / 4.31 s, bunny 1.92 / 4.80 / 7.39 / 9.65 -> 1.97 /
+# 5.16 / 5.45 / 6.78 s; the helper's start (importing Open3D, about 1 s of the other core) is paid
+# whether or not the target turns out to be Poisson, so only from here on. Whole reconstruct, fresh
+# processes, old and new interleaved in one session (load 1.3-1.9): 10^5 true-normal points,
+# bunny / armadillo / fandisk / abc_00000005 15.6 / 12.4 / 12.0 / 9.8 -> 13.6 / 12.0 / 11.0 / 9.0 s
+# (summed 0.92x; against Poisson depth 8 alone 3.42x -> 3.13x); the same without normals, grid 64,
+# bunny / armadillo / fandisk 13.4 / 10.2 / 10.5 -> 11.6 / 10.1 / 9.8 s (0.92x); 10^6 points
+# (margin 8) armadillo 49.6 -> 41.1 s, bunny 54.1 -> 48.0 s. All 38 dev meshes at 10^5 points
+# without normals (pointcloud_dense38): CD 0.6588 -> 0.6557, NC 0.9821 both, F1 0.9382 -> 0.9381.
+SPLIT_POINTS = 60_000
+# Each half takes the points up to this many octree cells past the cut. Against the surface solved
+# whole (armadillo and fandisk, 10^5 points, depth 8), the halves' vertices lie at most 0.28-0.40
+# cells off it (0.07-0.10 at the 99th percentile) for a margin of 2, 4, 8 or 16 cells alike: the
+# difference is the halves' own octree alignment, not the cut (at the cut 0.12-0.36). Whole
+# reconstruct, 10^5 true-normal points, bunny / armadillo / fandisk / abc_00000005, CD whole 0.5951 /
+# 0.4651 / 0.6683 / 0.6318; split with a margin of 4: 0.5918 / 0.4677 / 0.6675 / 0.6359; 8: 0.5941 /
+# 0.4659 / 0.6665 / 0.6311; 16: 0.5914 / 0.4645 / 0.6649 / 0.6339 (NC within 0.0005 of whole's, F1
+# within 0.0012): a tiny change of the target moves the fit by as much, and the widest margin is the
+# safest where a hole crosses the cut.
+SPLIT_MARGIN_CELLS = 16
