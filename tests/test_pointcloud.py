@@ -473,6 +473,27 @@ def test_a_poisson_helper_that_died_leaves_the_half_to_this_process(monkeypatch)
     assert not os.path.exists(folder)
 
 
+def test_a_poisson_helper_starts_only_where_a_split_can_use_it(monkeypatch):
+    from voro3d.pointcloud import poisson
+    from voro3d.pointcloud.poisson import PoissonHelper, poisson_helper
+
+    monkeypatch.setattr(poisson, "SPLIT_POINTS", 1000)
+    monkeypatch.setattr("voro3d._system.available_cpus", lambda: 2)
+    for count, threads, wanted in ((999, None, True), (5000, 1, True), (5000, None, False)):
+        with poisson_helper(count, threads, wanted=wanted) as helper:
+            assert helper is None
+    monkeypatch.setattr(poisson.sys, "executable", "")  # embedded: no interpreter to start
+    with poisson_helper(5000, None) as helper:
+        assert helper is None
+    monkeypatch.undo()
+    monkeypatch.setattr(poisson, "SPLIT_POINTS", 1000)
+    monkeypatch.setattr("voro3d._system.available_cpus", lambda: 2)
+    with poisson_helper(5000, 2) as helper:
+        assert isinstance(helper, PoissonHelper)
+        folder = helper._folder
+    assert not os.path.exists(folder)
+
+
 def test_a_scan_whose_target_runs_into_its_box_has_no_fins(scans):
     # radar.xyz: two holes whose Poisson surface ran to the box, open; the fit's labels scattered
     # about the open winding number and grew fins up to 20 voxels off the target.

@@ -281,10 +281,11 @@ class PoissonHelper:
 def poisson_helper(count: int, threads: int | None, *, wanted: bool = True):
     """A started :class:`PoissonHelper` (closed on exit) where the target of a cloud of ``count``
     points may be a split Poisson surface (``wanted``: the plan allows a Poisson target) and a
-    second core may be used (``threads`` is not 1); else None."""
+    second core may be used (``threads`` is not 1) by an interpreter this process can start
+    (``sys.executable``; an embedding program may have none); else None."""
     from .._system import available_cpus
 
-    if not wanted or count < SPLIT_POINTS or threads == 1 or available_cpus() < 2:
+    if not wanted or count < SPLIT_POINTS or threads == 1 or available_cpus() < 2 or not sys.executable:
         yield None
         return
     with PoissonHelper() as helper:
