@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -153,8 +154,9 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     """
     if points.shape[0] < SPLIT_POINTS:
         return PoissonSurface(*_half(points, normals, depth, OCTREE_SCALE, filter_width), resolution=2**depth)
-    side = float(np.ptp(points, axis=0).max())
-    axis = int(np.argmax(np.ptp(points, axis=0)))
+    extent = np.ptp(points, axis=0)
+    axis = int(np.argmax(extent))
+    side = float(extent[axis])
     cut = float(np.median(points[:, axis]))
     margin = SPLIT_MARGIN_CELLS * OCTREE_SCALE * side / 2**depth
     sides = (points[:, axis] < cut + margin, points[:, axis] > cut - margin)
@@ -209,6 +211,11 @@ def _side(vertices, triangles, axis: int, cut: float, *, low: bool):
     triangles = triangles[centre < cut] if low else triangles[centre >= cut]
     used = np.zeros(vertices.shape[0], bool)
     used[triangles] = True
+    return _reindexed(vertices, triangles, used)
+
+
+def _reindexed(vertices, triangles, used):
+    """``vertices[used]`` and ``triangles``, whose corners are all used, numbered into them."""
     return vertices[used], (np.cumsum(used) - 1)[triangles]
 
 
@@ -257,8 +264,6 @@ class PoissonHelper:
             return mesh["vertices"], mesh["triangles"]
 
     def close(self) -> None:
-        import shutil
-
         if self._process is not None:
             if self._process.poll() is None:
                 self._process.kill()
@@ -444,6 +449,4 @@ def _supported_pieces(vertices, triangles, points):
     if kept.all():
         return vertices, triangles
     used = kept[piece]
-    triangles = triangles[used[triangles[:, 0]]]
-    remap = np.cumsum(used) - 1
-    return vertices[used], remap[triangles]
+    return _reindexed(vertices, triangles[used[triangles[:, 0]]], used)

@@ -233,7 +233,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         if normals.shape != points.shape:
             raise ValueError(f"normals must have the points' shape {points.shape}, got {normals.shape}")
     plan = as_plan(plan)
-    with trusted(), poisson_helper(points.shape[0], threads, wanted=plan.target not in ("imls", "sheet")) as helper:
+    with trusted(), poisson_helper(points.shape[0], threads, wanted=plan.target in ("auto", "poisson")) as helper:
         return _reconstruct_points(points, normals, grid=grid, method=method, steps=steps, seed=seed, device=device,
                                    model=model, threads=threads, plan=plan, engine=engine, workers=workers,
                                    progress=progress, helper=helper)
