@@ -33,3 +33,20 @@ def test_raycasting_scene_distance():
 
     distance = scene.compute_distance(o3d.core.Tensor(np.array([[0.5, 0.25, 3.0]], np.float32))).numpy()
     assert distance[0] == pytest.approx(3.0)
+
+
+def test_subdivide_midpoint_splits_each_triangle_in_four_and_keeps_the_surface():
+    import trimesh
+
+    from voro3d.geometry import subdivide_midpoint
+
+    sphere = trimesh.creation.icosphere(1)
+    vertices, triangles = subdivide_midpoint(sphere.vertices, sphere.faces)
+    split = trimesh.Trimesh(vertices, triangles, process=False)
+    assert len(triangles) == 4 * len(sphere.faces) and len(vertices) == len(sphere.vertices) + len(sphere.edges_unique)
+    np.testing.assert_array_equal(vertices[: len(sphere.vertices)], sphere.vertices)
+    assert split.is_watertight and split.is_winding_consistent  # one midpoint per shared side
+    assert split.area == pytest.approx(sphere.area) and split.volume == pytest.approx(sphere.volume)  # outward still
+    # The four children of triangle i, rows 4i to 4i + 3, face as their parent does.
+    np.testing.assert_allclose(face_normals(vertices, triangles),
+                               np.repeat(face_normals(sphere.vertices, sphere.faces), 4, axis=0), atol=1e-12)

@@ -518,6 +518,14 @@ def test_poisson_depth_goes_finer_only_where_the_points_are_dense():
     assert poisson_depth(64, 1e-5) == 10
 
 
+def test_the_mesh_is_split_before_the_snap_only_where_dense_points_made_the_target_finer():
+    from voro3d.pointcloud.resolution import refine_levels
+
+    assert refine_levels("poisson", poisson_depth(64, 0.002), 64) == 1  # 1M bunny points
+    assert refine_levels("poisson", poisson_depth(64, 0.0065), 64) == 0  # 100k
+    assert refine_levels("imls", 9, 64) == refine_levels("sheet", 9, 64) == 0  # their field follows the grid
+
+
 def test_node_distance_matches_a_query_of_every_node():
     from scipy.spatial import cKDTree
 

@@ -1,11 +1,11 @@
 """Geometry shared by the stages: face and vertex normals, triangle angles, graph components,
-Open3D's raycasting scene, the voxel of a grid."""
+Open3D's raycasting scene, the voxel of a grid, midpoint subdivision."""
 from __future__ import annotations
 
 import numpy as np
 
 __all__ = ["components", "face_area_vectors", "face_normals", "grid_voxel", "raycasting_scene", "smallest_angles",
-           "vertex_normals"]
+           "subdivide_midpoint", "vertex_normals"]
 
 
 def grid_voxel(grid: int) -> float:
@@ -71,3 +71,22 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     summed = np.stack([np.bincount(corners, weights=np.repeat(face[:, d], 3), minlength=n) for d in range(3)], axis=1)
     length = np.linalg.norm(summed, axis=1, keepdims=True)
     return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
+
+
+def subdivide_midpoint(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each triangle split in four at the midpoints of its sides, the same surface with four times the triangles.
+
+    A side shared by two triangles gets one midpoint, so a closed manifold stays closed and
+    manifold; the children keep their parent's orientation. Returns ``(vertices, triangles)``: the
+    ``(v, 3)`` input vertices first, then one midpoint per side; ``(4 t, 3)`` int64 triangles.
+    """
+    vertices = np.asarray(vertices, np.float64)
+    triangles = np.asarray(triangles, np.int64)
+    sides = triangles[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)  # side k of a triangle joins corners k, k+1
+    unique, side_index = np.unique(np.sort(sides, axis=1), axis=0, return_inverse=True)
+    middle = vertices.shape[0] + side_index.reshape(-1, 3)
+    a, b, c = triangles.T
+    ab, bc, ca = middle.T
+    children = np.stack([np.c_[a, ab, ca], np.c_[ab, b, bc], np.c_[ca, bc, c], np.c_[ab, bc, ca]], axis=1)
+    midpoints = 0.5 * (vertices[unique[:, 0]] + vertices[unique[:, 1]])
+    return np.vstack([vertices, midpoints]), children.reshape(-1, 3)

@@ -74,7 +74,7 @@ class VoroMesh:
         """The same generators, grid, frame and triangulation with another occupancy."""
         return replace(self, occupancy=occupancy)
 
-    def to_open3d(self, *, clean: bool = True, surface=None, smoothing: float = 0.0,
+    def to_open3d(self, *, clean: bool = True, surface=None, smoothing: float = 0.0, refine: int = 0,
                   tolerance: float = DEFAULT_TOLERANCE):
         """The watertight surface: extracted, then cleaned, then fitted to ``surface``.
 
@@ -98,6 +98,10 @@ class VoroMesh:
             uncleaned faces' slivers would hold most vertices back.
         smoothing : float
             The fit's pull of each vertex towards its neighbours, for a noisy ``surface``.
+        refine : int
+            Times the cleaned triangles are split in four (:func:`voro3d.geometry.subdivide_midpoint`)
+            before the fit to ``surface``, which then shapes the surface past the grid's faces: for a
+            ``surface`` finer than the grid (a cloud's target from dense points). Needs ``surface``.
         tolerance : float
             As in :func:`voro3d.extract_mesh`.
 
@@ -110,7 +114,8 @@ class VoroMesh:
         Raises
         ------
         ValueError
-            ``surface`` without ``clean``, or what the stages refuse (named).
+            ``surface`` without ``clean``, ``refine`` without ``surface`` or below 0, or what the
+            stages refuse (named).
         """
         from .extract import voronoi_surface
         from .io import mesh_arrays, to_triangle_mesh
@@ -122,6 +127,10 @@ class VoroMesh:
             surface = mesh_arrays(surface, "surface")
         if not (np.isfinite(smoothing) and smoothing >= 0):
             raise ValueError(f"smoothing must be finite and >= 0, got {smoothing}")
+        if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
+            raise ValueError(f"refine must be an int >= 0, got {refine!r}")
+        if refine and surface is None:
+            raise ValueError("refine needs a surface: split triangles are shaped only by the fit to one")
         # The generators were checked when the VoroMesh was made: the stages below trust them.
         with trusted():
             triangulation = self.triangulated() if tolerance == DEFAULT_TOLERANCE else None
@@ -133,8 +142,11 @@ class VoroMesh:
 
                 vertices, triangles, info = clean_surface(vertices, triangles, voxel=self.voxel)
                 if surface is not None:
+                    from .geometry import subdivide_midpoint
                     from .snapping import snap_to_surface
 
+                    for _ in range(refine):
+                        vertices, triangles = subdivide_midpoint(vertices, triangles)
                     vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing)
             return to_triangle_mesh(vertices, triangles, normals=True)
 

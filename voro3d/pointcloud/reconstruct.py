@@ -10,7 +10,7 @@ sampled on both sides closer than the point spacing (where both make a lumpy sol
 a small distance around the points (:func:`~voro3d.pointcloud.surface.sheet_surface`); the same
 target labels the cells.
 :func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
-(:func:`voro3d.snapping.snap_to_surface`).
+(:func:`voro3d.snapping.snap_to_surface`), its triangles split first where the target is finer than the grid.
 """
 from __future__ import annotations
 
@@ -28,15 +28,14 @@ from .normals import estimate_normals, orient_normals, sign_disagreement
 from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
                          outlier_mask, outlier_neighbours)
 from .poisson import poisson_depth, poisson_helper, poisson_surface
-from .resolution import choose_grid, fit_band, target_samples
+from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_normals, sheet_if_closer, sheet_target
 from .surface import imls, target_surface, winding_level
 from .debris import drop_stray_cells
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
-                     MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE,
-                     DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, HOLE_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE,
-                     FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
+                     MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL,
+                     HOLE_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -128,12 +127,15 @@ class SnapTarget:
         fitted to samples of it (not a dense clean cloud, fitted to its own points).
     smoothing : float
         The snap's pull of each vertex towards its neighbours (``NOISY_SMOOTHING`` for a noisy cloud).
+    refine : int
+        Times the triangles are split in four before the snap (:func:`~voro3d.pointcloud.resolution.refine_levels`).
     """
 
     vertices: np.ndarray = field(repr=False)
     triangles: np.ndarray = field(repr=False)
     snap: bool
     smoothing: float
+    refine: int = 0
 
 
 def report_phase(progress: bool, phase: str, text: str, seconds: float | None = None) -> None:
@@ -409,7 +411,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                           voxel=grid_voxel(grid) / frame.scale, offset=target.offset / frame.scale if kind == "sheet" else 0.0,
                           tiles=n_tiles, seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
-                            smoothing=NOISY_SMOOTHING if noisy else 0.0)
+                         smoothing=NOISY_SMOOTHING if noisy else 0.0, refine=refine_levels(kind, depth, target_grid))
     return shape, surface, info
 
 
@@ -424,7 +426,8 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
     clean : bool
         Clean the surface (:func:`voro3d.cleaning.clean`) and, where ``target.snap``, fit its
         vertices to the target surface (:func:`voro3d.snapping.snap_to_surface`: at most a
-        quarter voxel, no triangle flipped, thinned or crossing; with ``target.smoothing``).
+        quarter voxel, no triangle flipped, thinned or crossing; with ``target.smoothing``, the
+        triangles split ``target.refine`` times first).
     progress : bool
         One line on stderr when done, as in :func:`reconstruct_points`.
 
@@ -436,10 +439,10 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
     start = time.perf_counter()
     snap = clean and target.snap
     mesh = shape.to_open3d(clean=clean, surface=(target.vertices, target.triangles) if snap else None,
-                           smoothing=target.smoothing)
+                           smoothing=target.smoothing, refine=target.refine if snap else 0)
     report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight"
-                 f"{'' if not clean else ', cleaned and fitted to the target' if snap else ', cleaned'}",
-                 time.perf_counter() - start)
+                 f"{'' if not clean else ', cleaned and fitted to the target' if snap else ', cleaned'}"
+                 f"{f', split {4**target.refine}x' if snap and target.refine else ''}", time.perf_counter() - start)
     return mesh
 
 
