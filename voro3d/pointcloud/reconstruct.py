@@ -440,9 +440,9 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
     snap = clean and target.snap
     mesh = shape.to_open3d(clean=clean, surface=(target.vertices, target.triangles) if snap else None,
                            smoothing=target.smoothing, refine=target.refine if snap else 0)
-    report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight"
-                 f"{'' if not clean else ', cleaned and fitted to the target' if snap else ', cleaned'}"
-                 f"{f', split {4**target.refine}x' if snap and target.refine else ''}", time.perf_counter() - start)
+    done = ", cleaned" + ("" if not snap else " and fitted to the target" if not target.refine else
+                          ", each triangle split in four and fitted to the target") if clean else ""
+    report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight{done}", time.perf_counter() - start)
     return mesh
 
 
