@@ -63,6 +63,10 @@ MAX_TARGET_GRID = 64
 # -> 0.664, abc_00000005 0.635 -> 0.629 (Poisson depth 9 alone: 0.591, 0.665, 0.630), armadillo
 # 0.463 both; 33-40 s instead of 18-28 s. At 100k points depth 9 gained nothing (CD -0.2% to
 # +0.6%, 1.2-2 s more), and this keeps them at 8: cells 1.2 spacings wide at depth 9.
+# With the mesh split before its snap (resolution.refine_levels), depth 8 forced at 10^6 points, split
+# all the same (CD / NC the means of 5 evaluation seeds, 2026-12-04): armadillo 0.4601 / 0.9823 ->
+# 0.4610 / 0.9820 and 47.7 -> 31.2 s, bunny 0.5903 / 0.9903 -> 0.5911 / 0.9902 and 60.0 -> 30.5 s
+# (Poisson depth 9 alone: 0.4589, 0.5908): half the time for 0.1-0.2% CD, kept at depth 9.
 TARGET_CELL_SPACINGS = 1.5
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
