@@ -34,7 +34,7 @@ from ._validate import MESH_AUTO_GRID, as_points, grid_option, mesh_grid, method
 from .pointcloud.plan import as_plan
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
 from .pointcloud.tiles import ENGINES, analysis_subset
-from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
+from .pointcloud.tuning import CHECK_POINTS, MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
@@ -243,12 +243,14 @@ class VoroMeshStage:
 
 def _check_fit(mesh, points, voxel: float, offset: float = 0.0) -> None:
     """Refuse a cloud's mesh that is far off its points (``MAX_HULL_VOLUME``, ``MAX_MEDIAN_DISTANCE``
-    voxels beyond the ``offset`` its target keeps from them by design, ``PointCloudInfo.offset``)."""
+    voxels beyond the ``offset`` its target keeps from them by design, ``PointCloudInfo.offset``),
+    read from at most ``CHECK_POINTS`` of them, evenly."""
     from scipy.spatial import ConvexHull
 
     from .queries import InsideOutside
     from .watertight import signed_volume
 
+    points = points[:: -(-len(points) // CHECK_POINTS)]
     ratio = signed_volume(np.asarray(mesh.vertices), np.asarray(mesh.triangles)) / ConvexHull(points).volume
     if ratio > MAX_HULL_VOLUME:
         raise ValueError(f"the reconstructed surface encloses {ratio:.1f} times the volume of the points' convex hull: "
