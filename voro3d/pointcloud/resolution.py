@@ -66,12 +66,13 @@ def refine_levels(kind: str, depth: int, grid: int) -> int:
     made finer than ``grid`` asks (:func:`~voro3d.pointcloud.poisson.poisson_depth`), else never.
 
     The grid's flat faces then no longer cut the chords of the detail the target holds. 10^6
-    true-normal points (bench_large's clouds, grid "auto": 128 over 3 levels, target depth 9), CD the
-    mean of 5 evaluation seeds, unsplit -> split once (twice): bunny 0.5930 -> 0.5896, armadillo
-    0.4623 -> 0.4598 (0.4591), fandisk 0.6630 -> 0.6639 (0.6618); NC 0.9886 -> 0.9905, 0.9775 ->
-    0.9826 (0.9855), 0.9881 -> 0.9889; Poisson depth 9 alone, two runs: 0.5887 / 0.5890, 0.4587 /
-    0.4589, 0.6633 / 0.6610, NC 0.9938, 0.9874, 0.9909. Faces 4x (16-163k, against Poisson's
-    1.1-1.5M), the mesh stage 3.0 -> 4.9 s on the armadillo; twice split, 4-16 s more.
+    true-normal points (bench_large's clouds, grid "auto": 128 over 3 levels, target depth 9), CD / NC
+    the means of 5 evaluation seeds, unsplit -> split once: bunny 0.5930 / 0.9886 -> 0.5903 / 0.9903,
+    armadillo 0.4623 / 0.9775 -> 0.4601 / 0.9823, fandisk 0.6630 / 0.9881 -> 0.6635 / 0.9889,
+    abc_00000005 0.6334 / 0.9943 -> 0.6328 / 0.9945 (Poisson depth 9 alone, same run: 0.5908,
+    0.4589, 0.6635, 0.6349); faces 4x (40-163k, against Poisson's 0.9-1.5M), the mesh stage about
+    3 s more. Split twice (armadillo 0.4591 / 0.9855) costs 4-16 s more; snapped before the split
+    too, 1.5 s more for CD -0.0003 to -0.0007 and NC +0.0002-0.0003.
     """
     from .poisson import poisson_depth
 
