@@ -35,18 +35,22 @@ def test_raycasting_scene_distance():
     assert distance[0] == pytest.approx(3.0)
 
 
-def test_subdivide_midpoint_splits_each_triangle_in_four_and_keeps_the_surface():
+def test_split_triangles_splits_each_triangle_in_four_and_keeps_the_surface():
     import trimesh
 
-    from voro3d.geometry import subdivide_midpoint
+    from voro3d.geometry import split_triangles
 
     sphere = trimesh.creation.icosphere(1)
-    vertices, triangles = subdivide_midpoint(sphere.vertices, sphere.faces)
+    vertices, triangles, splits = split_triangles(sphere.vertices, sphere.faces, 1)
     split = trimesh.Trimesh(vertices, triangles, process=False)
-    assert len(triangles) == 4 * len(sphere.faces) and len(vertices) == len(sphere.vertices) + len(sphere.edges_unique)
+    assert splits == 1 and len(triangles) == 4 * len(sphere.faces)
+    assert len(vertices) == len(sphere.vertices) + len(sphere.edges_unique)
     np.testing.assert_array_equal(vertices[: len(sphere.vertices)], sphere.vertices)
     assert split.is_watertight and split.is_winding_consistent  # one midpoint per shared side
     assert split.area == pytest.approx(sphere.area) and split.volume == pytest.approx(sphere.volume)  # outward still
     # The four children of triangle i, rows 4i to 4i + 3, face as their parent does.
     np.testing.assert_allclose(face_normals(vertices, triangles),
                                np.repeat(face_normals(sphere.vertices, sphere.faces), 4, axis=0), atol=1e-12)
+    assert len(split_triangles(sphere.vertices, sphere.faces, 2)[1]) == 16 * len(sphere.faces)
+    unsplit = split_triangles(sphere.vertices, sphere.faces, 0)
+    assert unsplit[2] == 0 and np.array_equal(unsplit[1], sphere.faces)

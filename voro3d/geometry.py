@@ -1,11 +1,11 @@
 """Geometry shared by the stages: face and vertex normals, triangle angles, graph components,
-Open3D's raycasting scene, the voxel of a grid, midpoint subdivision."""
+Open3D's raycasting scene, the voxel of a grid, midpoint splits."""
 from __future__ import annotations
 
 import numpy as np
 
 __all__ = ["components", "face_area_vectors", "face_normals", "grid_voxel", "raycasting_scene", "smallest_angles",
-           "subdivide_midpoint", "vertex_normals"]
+           "split_triangles", "vertex_normals"]
 
 
 def grid_voxel(grid: int) -> float:
@@ -73,20 +73,26 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
 
 
-def subdivide_midpoint(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each triangle split in four at the midpoints of its sides, the same surface with four times the triangles.
 
-    A side shared by two triangles gets one midpoint, so a closed manifold stays closed and
-    manifold; the children keep their parent's orientation. Returns ``(vertices, triangles)``: the
-    ``(v, 3)`` input vertices first, then one midpoint per side; ``(4 t, 3)`` int64 triangles.
+def split_triangles(vertices: np.ndarray, triangles: np.ndarray, times: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The mesh with each triangle split in four at the midpoints of its sides (Open3D's
+    ``subdivide_midpoint``: one midpoint per shared side, the children facing as their parent),
+    ``times`` times, or fewer, down to none, while that makes triangles cross (exact test).
+
+    A split moves no surface, but its midpoints are rounded, and a fold the mesh held (which the
+    exact test once let through between neighbours) is split into pairs that are no longer
+    neighbours: 3 of 12 dev meshes at 20k points, coloured (:func:`voro3d.pointcloud.colored_mesh`).
+
+    Returns ``(vertices, triangles, splits)``: ``(v, 3)`` float64, ``(4^splits t, 3)`` int64, and
+    the splits made.
     """
-    vertices = np.asarray(vertices, np.float64)
-    triangles = np.asarray(triangles, np.int64)
-    sides = triangles[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)  # side k of a triangle joins corners k, k+1
-    unique, side_index = np.unique(np.sort(sides, axis=1), axis=0, return_inverse=True)
-    middle = vertices.shape[0] + side_index.reshape(-1, 3)
-    a, b, c = triangles.T
-    ab, bc, ca = middle.T
-    children = np.stack([np.c_[a, ab, ca], np.c_[ab, b, bc], np.c_[ca, bc, c], np.c_[ab, bc, ca]], axis=1)
-    midpoints = 0.5 * (vertices[unique[:, 0]] + vertices[unique[:, 1]])
-    return np.vstack([vertices, midpoints]), children.reshape(-1, 3)
+    from .io import mesh_arrays, to_triangle_mesh
+    from .watertight import self_intersections
+
+    mesh = to_triangle_mesh(vertices, triangles)
+    while times:
+        split = mesh_arrays(mesh.subdivide_midpoint(number_of_iterations=times))
+        if not len(self_intersections(*split)[0]):
+            return (*split, times)
+        times -= 1
+    return np.asarray(vertices, np.float64), np.asarray(triangles, np.int64), 0

@@ -99,9 +99,10 @@ class VoroMesh:
         smoothing : float
             The fit's pull of each vertex towards its neighbours, for a noisy ``surface``.
         refine : int
-            Times the cleaned triangles are split in four (:func:`voro3d.geometry.subdivide_midpoint`)
-            before the fit to ``surface``, which then shapes the surface past the grid's faces: for a
-            ``surface`` finer than the grid (a cloud's target from dense points). Needs ``surface``.
+            Times the cleaned triangles are split in four (:func:`voro3d.geometry.split_triangles`:
+            fewer where a split would make triangles cross) before the fit to ``surface``, which then
+            shapes the surface past the grid's faces: for a ``surface`` finer than the grid (a cloud's
+            target from dense points). Needs ``surface``.
         tolerance : float
             As in :func:`voro3d.extract_mesh`.
 
@@ -142,11 +143,10 @@ class VoroMesh:
 
                 vertices, triangles, info = clean_surface(vertices, triangles, voxel=self.voxel)
                 if surface is not None:
-                    from .geometry import subdivide_midpoint
+                    from .geometry import split_triangles
                     from .snapping import snap_to_surface
 
-                    for _ in range(refine):
-                        vertices, triangles = subdivide_midpoint(vertices, triangles)
+                    vertices, triangles, _ = split_triangles(vertices, triangles, refine)
                     vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing)
             return to_triangle_mesh(vertices, triangles, normals=True)
 

@@ -37,21 +37,14 @@ def colored_mesh(mesh, points: np.ndarray, colors: np.ndarray):
     """
     import open3d as o3d
 
-    from ..watertight import self_intersections
+    from ..geometry import split_triangles
+    from ..io import mesh_arrays, to_triangle_mesh
 
     vertices = max(len(mesh.vertices), 1)
     # Each split adds about three vertices per old one (a closed mesh has half as many vertices as faces).
     splits = int(np.clip(np.ceil(np.log(max(points.shape[0] / vertices, 1.0)) / np.log(4.0)), 0, MAX_COLOUR_SPLITS))
-    def split_by(times):
-        return mesh.subdivide_midpoint(number_of_iterations=times) if times else o3d.geometry.TriangleMesh(mesh)
-
-    split = split_by(splits)
-    # A split moves no surface, but its midpoints are rounded: where that makes pieces cross (or the
-    # mesh held a fold, which the exact check once let through between neighbours: 3 of 12 dev
-    # meshes at 20k points), fewer splits, down to none.
-    while splits and len(self_intersections(np.asarray(split.vertices), np.asarray(split.triangles))[0]):
-        splits -= 1
-        split = split_by(splits)
+    # A split whose pieces cross is not kept: fewer splits are, down to none.
+    split = to_triangle_mesh(*split_triangles(*mesh_arrays(mesh), splits)[:2])
     split.vertex_colors = o3d.utility.Vector3dVector(transfer_colors(np.asarray(split.vertices), points, colors))
     split.compute_vertex_normals()
     return split

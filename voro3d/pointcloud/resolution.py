@@ -14,6 +14,7 @@ import numpy as np
 
 from ..generators import AdaptiveBand
 from ..geometry import face_area_vectors, grid_voxel
+from .poisson import poisson_depth
 from .tuning import (AUTO_GRID_RANGE, AUTO_SPACINGS_PER_VOXEL, BAND_TOLERANCE, CLOUD_SAMPLES_PER_FACE, COARSEST_GRID,
                      HOLE_VOXELS, MAX_TARGET_GRID, MIN_SPACINGS_PER_VOXEL)
 
@@ -74,8 +75,6 @@ def refine_levels(kind: str, depth: int, grid: int) -> int:
     3 s more. Split twice (armadillo 0.4591 / 0.9855) costs 4-16 s more; snapped before the split
     too, 1.5 s more for CD -0.0003 to -0.0007 and NC +0.0002-0.0003.
     """
-    from .poisson import poisson_depth
-
     return int(kind == "poisson" and depth > poisson_depth(grid))
 
 
