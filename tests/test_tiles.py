@@ -138,17 +138,21 @@ def test_the_tiles_give_the_same_mesh_wherever_they_run(tiled_bracket):
 
 
 def test_objects_far_apart_are_found_on_a_subset(monkeypatch):
-    # A cloud over TILE_POINTS is split into objects on a subset, every point then going with its
-    # nearest subset point: both spheres are kept, each with all its points.
+    # A cloud over SEPARATE_POINTS (and TILE_POINTS) is split into objects on a subset, every point
+    # then going with its nearest subset point: both spheres are kept, each with all its points; a
+    # clump too small to stand alone stays with the rest.
+    import voro3d.reconstruction as reconstruction
     from voro3d.reconstruction import _objects, reconstruct
 
     points, _ = sample_surface(example_mesh("sphere"), 3000, seed=3)
     cloud = np.vstack([points, points + [6.0, 0.0, 0.0]])
+    monkeypatch.setattr(reconstruction, "SEPARATE_POINTS", 1500)
     monkeypatch.setattr(tiles_module, "TILE_POINTS", 4000)
     monkeypatch.setattr(tiles_module, "ANALYSIS_POINTS", 2000)
     groups = _objects(cloud)
     assert sorted(len(group) for group in groups) == [3000, 3000]
     assert np.array_equal(np.sort(np.concatenate(groups)), np.arange(6000))
+    assert len(_objects(cloud[:3050])) == 1
     out = reconstruct(cloud, grid=32, steps=100)
     assert check_watertight(out).watertight
     assert len(np.unique(np.asarray(out.cluster_connected_triangles()[0]))) == 2

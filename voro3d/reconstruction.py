@@ -33,8 +33,8 @@ import numpy as np
 from ._validate import MESH_AUTO_GRID, as_points, grid_option, mesh_grid, method_options, positive_int, trusted
 from .pointcloud.plan import as_plan
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
-from .pointcloud.tiles import ENGINES, analysis_subset
-from .pointcloud.tuning import CHECK_POINTS, MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE
+from .pointcloud.tiles import ENGINES, analysis_subset, check_stride
+from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE, SEPARATE_POINTS
 
 __all__ = ["reconstruct", "VoroMeshStage"]
 
@@ -185,23 +185,25 @@ def _cloud_to_mesh(points, normals, colors, grid, method: str, options: dict, *,
 
 
 def _objects(points) -> list:
-    """:func:`~voro3d.pointcloud.separate_objects`; on a dense cloud, of a subset, each point then in its
-    nearest subset point's object (the pieces of a neighbour graph, far apart, are the same)."""
+    """:func:`~voro3d.pointcloud.separate_objects`; on more than ``SEPARATE_POINTS`` points, of every
+    k-th (at most that many), each point then in its nearest subset point's object (the pieces of a
+    neighbour graph, far apart, are the same)."""
     from scipy.spatial import cKDTree
 
     from .pointcloud import separate_objects
 
-    subset = analysis_subset(len(points), 0)
-    if subset is None:
+    if len(points) <= SEPARATE_POINTS:
         return separate_objects(points, min_points=MIN_POINTS)
-    groups = separate_objects(points[subset], min_points=MIN_POINTS)
+    subset = points[:: -(-len(points) // SEPARATE_POINTS)]
+    groups = separate_objects(subset, min_points=max(1, MIN_POINTS * len(subset) // len(points)))
     if len(groups) == 1:
         return [np.arange(len(points))]
     label = np.empty(len(subset), np.int64)
     for number, group in enumerate(groups):
         label[group] = number
-    nearest = label[cKDTree(points[subset]).query(points, workers=-1)[1]]
-    return [np.flatnonzero(nearest == number) for number in range(len(groups))]
+    nearest = label[cKDTree(subset).query(points, workers=-1)[1]]
+    groups = [np.flatnonzero(nearest == number) for number in range(len(groups))]
+    return groups if min(map(len, groups)) >= MIN_POINTS else [np.arange(len(points))]
 
 
 class VoroMeshStage:
@@ -250,7 +252,7 @@ def _check_fit(mesh, points, voxel: float, offset: float = 0.0) -> None:
     from .queries import InsideOutside
     from .watertight import signed_volume
 
-    points = points[:: -(-len(points) // CHECK_POINTS)]
+    points = points[::check_stride(len(points))]
     ratio = signed_volume(np.asarray(mesh.vertices), np.asarray(mesh.triangles)) / ConvexHull(points).volume
     if ratio > MAX_HULL_VOLUME:
         raise ValueError(f"the reconstructed surface encloses {ratio:.1f} times the volume of the points' convex hull: "

@@ -112,7 +112,7 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
 
     Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
     ``SHEET_SURFACE_GATE``); kept when its :func:`_misfit` is under ``SHEET_WIN`` times the target's.
-    ``distance``: the (n,) distance of ``points`` to ``target``, when already measured.
+    ``distance``: the distance of ``points`` (or of an even share of them) to ``target``, when already measured.
     """
     from scipy.spatial import cKDTree
 

@@ -32,7 +32,7 @@ from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_normals, sheet_if_closer, sheet_target
 from .surface import imls, target_surface, winding_level
 from .debris import drop_stray_cells
-from .tiles import ENGINES, analysis_subset, fit_in_tiles
+from .tiles import ENGINES, analysis_subset, check_stride, fit_in_tiles
 from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL,
                      HOLE_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
@@ -449,8 +449,8 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
 def _target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
             resolution: int, filtered: bool, dense: bool, helper):
     """``(kind, target, distance)``: the target surface of ``plan.target`` (``choice``), the ``"auto"``
-    rule of :class:`~voro3d.pointcloud.plan.CloudPlan` when it is ``"auto"``, and the (n,) distance of
-    ``given`` to it where the rule measured it (else None). ``points`` are the points the field is
+    rule of :class:`~voro3d.pointcloud.plan.CloudPlan` when it is ``"auto"``, and the distance of
+    every :func:`check_stride`-th point of ``given`` to it where the rule measured it (else None). ``points`` are the points the field is
     built from (smoothed or not), ``given`` the points as they came, for the shell; ``helper``
     solves half of a split Poisson surface (:func:`~voro3d.pointcloud.poisson.poisson_surface`)."""
     if choice == "sheet":
@@ -470,18 +470,18 @@ def _target(choice: str, points, given, normals, widths, stats, *, level: float,
                                 hole_level=max(level, HOLE_LEVEL) if closed else None,
                                 depth=None if closed else SHELL_DEPTH)
     if choice == "auto" and not target.dense:
-        distance = target.distance(given)
+        distance = target.distance(given[::check_stride(len(given))])
         sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance)
         return ("sheet", sheet, None) if sheet is not None else (kind, target, distance)
     return kind, target, None
 
 
 def _check_coverage(target, points, widths, *, distance=None) -> None:
-    """Refuse a target surface that misses the points: one that no volume behind them explains
-    (a one-sided scan of a thin or open structure) shrinks to blobs far from most points.
-    ``distance``: the points' distance to the target, when already measured."""
-    distance = target.distance(points) if distance is None else distance
-    covered = float(np.mean(distance <= 2.0 * widths + 2.0 / (target.resolution - 1)))
+    """Refuse a target surface that misses the points (read from every :func:`check_stride`-th, whose ``distance``
+    may be given): one that no volume behind them explains (a one-sided scan of a thin or open structure)."""
+    every = slice(None, None, check_stride(len(points)))
+    distance = target.distance(points[every]) if distance is None else distance
+    covered = float(np.mean(distance <= 2.0 * widths[every] + 2.0 / (target.resolution - 1)))
     if covered < MIN_COVERAGE:
         raise ValueError(f"no closed surface explains these points: only {100 * covered:.0f}% of them lie on the "
                          "reconstructed surface (an open, one-sided scan of a thin or flat object?)")
