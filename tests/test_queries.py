@@ -221,7 +221,7 @@ def test_dev_grid_nodes_where_open3d_occupancy_is_wrong(dev_meshes):
     queries = InsideOutside(mesh)
     nodes = grid_nodes(64)
     ours = queries.occupancy(nodes)
-    theirs = queries._scene.compute_occupancy(o3d.core.Tensor(nodes.astype(np.float32)), nsamples=3).numpy() > 0.5
+    theirs = queries.scene.compute_occupancy(o3d.core.Tensor(nodes.astype(np.float32)), nsamples=3).numpy() > 0.5
     differ = np.flatnonzero(ours != theirs)
     assert differ.size > 0
     np.testing.assert_array_equal(ours[differ], queries.winding_number(nodes[differ]) > 0.5)

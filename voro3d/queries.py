@@ -155,6 +155,8 @@ class InsideOutside:
     triangles : (t, 3) int64
     closed : bool
         Every edge is shared by exactly two triangles (after welding coincident vertices).
+    scene : open3d.t.geometry.RaycastingScene
+        The mesh's, which every query here casts into.
 
     Raises
     ------
@@ -178,7 +180,7 @@ class InsideOutside:
                 f"mesh has {bad_edges} edges not shared by exactly two triangles (open boundary or "
                 "non-manifold edges): inside/outside is undefined; pass allow_open=True to decide it by "
                 "generalized winding number, or reconstruct points sampled on it as a point cloud")
-        self._scene = raycasting_scene(self.vertices, self.triangles)
+        self.scene = raycasting_scene(self.vertices, self.triangles)
 
     @staticmethod
     def _tensor(points):
@@ -204,7 +206,7 @@ class InsideOutside:
         rays = np.empty((points.shape[0], n_rays, 6), dtype=np.float32)
         rays[:, :, :3] = points[:, None, :]
         rays[:, :, 3:] = RAY_DIRECTIONS
-        crossings = self._scene.count_intersections(o3d.core.Tensor(rays)).numpy()
+        crossings = self.scene.count_intersections(o3d.core.Tensor(rays)).numpy()
         votes = (crossings % 2).sum(axis=1)
         inside = votes * 2 > n_rays
         split = np.flatnonzero((votes != 0) & (votes != n_rays))
@@ -236,7 +238,7 @@ class InsideOutside:
         points = as_points(points, "points", min_count=0)
         if points.shape[0] == 0:
             return np.zeros(0)
-        return self._scene.compute_distance(self._tensor(points)).numpy().astype(np.float64)
+        return self.scene.compute_distance(self._tensor(points)).numpy().astype(np.float64)
 
     def signed_distance(self, points) -> np.ndarray:
         """``(n, 3)`` points -> ``(n,)`` float64 distance to the surface, negative inside."""
@@ -255,7 +257,7 @@ class InsideOutside:
         points = as_points(points, "points", min_count=0)
         if points.shape[0] == 0:
             return np.zeros((0, 3)), np.zeros((0, 3))
-        found = self._scene.compute_closest_points(self._tensor(points))
+        found = self.scene.compute_closest_points(self._tensor(points))
         return (found["points"].numpy().astype(np.float64),
                 found["primitive_normals"].numpy().astype(np.float64))
 

@@ -102,6 +102,11 @@ class PoissonSurface:
         """(q, 3) fit-frame points -> (q,) float64 distance to the mesh."""
         return self._query.unsigned_distance(queries)
 
+    @property
+    def scene(self):
+        """Open3D's ``RaycastingScene`` of the mesh (the one its distances are read from)."""
+        return self._query.scene
+
     def escape(self, points: np.ndarray) -> float:
         """How far the mesh runs out of the bounding box of ``points`` (n, 3), in box diagonals.
 

@@ -1,15 +1,14 @@
 """Point cloud -> VoroMesh: clean, orient, build a smooth target surface, fit the generators to it.
 
-Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of a 64^3 grid
-empty, and noise pulls generators off the surface. So the VoroLoss fit sees dense samples (as
-many as a mesh fit gets) of a target surface that the points define: screened Poisson for
-points that enclose a volume (:mod:`voro3d.pointcloud.poisson`), a robust IMLS field with the
-winding number of the points behind it for open, one-sided scans, held within a shell's depth
-of the points where they do not enclose it (:mod:`voro3d.pointcloud.surface`), or, for walls
-sampled on both sides closer than the point spacing (where both make a lumpy solid), a shell at
-a small distance around the points (:func:`~voro3d.pointcloud.surface.sheet_surface`); the same
-target labels the cells.
-:func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
+Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of a 64^3 grid empty, and
+noise pulls generators off the surface. So the VoroLoss fit sees dense samples (as many as a mesh fit
+gets) of a target surface that the points define: screened Poisson for points that enclose a volume
+(:mod:`voro3d.pointcloud.poisson`), carved where it buries points that were seen
+(:mod:`voro3d.pointcloud.sightlines`); a robust IMLS field with the winding number of the points behind
+it for open, one-sided scans, held within a shell's depth of the points where they do not enclose it
+(:mod:`voro3d.pointcloud.surface`); or, for walls sampled on both sides closer than the point spacing, a
+shell around the points (:func:`~voro3d.pointcloud.surface.sheet_surface`); the same target labels the
+cells. :func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
 (:func:`voro3d.snapping.snap_to_surface`), its triangles split first where the target is finer than the grid.
 """
 from __future__ import annotations
@@ -25,13 +24,13 @@ from ..queries import point_areas
 from ..snapping import NOISY_SMOOTHING
 from ..geometry import grid_voxel
 from .normals import estimate_normals, orient_normals, sign_disagreement
-from .preprocess import (MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates,
-                         outlier_mask, outlier_neighbours)
+from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, outlier_neighbours
 from .poisson import poisson_depth, poisson_helper, poisson_surface
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_normals, sheet_if_closer, sheet_target
 from .surface import imls, target_surface, winding_level
 from .debris import drop_stray_cells
+from .sightlines import CarvedSurface, carve_sightlines
 from .tiles import ENGINES, analysis_subset, check_stride, fit_in_tiles
 from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
                      MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL,
@@ -376,7 +375,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     surface_vertices = target.project(target.vertices)
     plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind)
     seconds["surface"] = time.perf_counter() - start
-    report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}"
+    report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{', carved where it hid points' if isinstance(target, CarvedSurface) else ''}"
                  f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
                  f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}", seconds["surface"])
 
@@ -457,11 +456,12 @@ def _target(choice: str, points, given, normals, widths, stats, *, level: float,
         return "sheet", sheet_target(given, stats.median_spacing, resolution), None
     target = None
     if choice == "poisson" or (choice == "auto" and closed):
-        target = poisson_surface(points, normals, depth,
-                                 filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None, helper=helper)
+        target = poisson_surface(points, normals, depth, filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None, helper=helper)
         if choice == "auto" and target.escape(points) > MAX_POISSON_ESCAPE:
             # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
             target = None
+        else:
+            target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
     kind = "poisson" if target is not None else "imls"
     if target is None:
         # Behind an open scan the solid is held within SHELL_DEPTH of the points (a shell under the

@@ -1,0 +1,253 @@
+"""Lines of sight: a closed target must leave every point a line along which it was seen.
+
+A scanner sees a point along a line that crosses no surface. Poisson closes what no view saw with
+the smoothest surface it can, and where that is the mouth of a container whose inside was partly
+seen (a cup scanned from six directions: its outside, rim and one side of its inner wall, not the
+mouth), the closure fills the cavity and buries the inner wall it saw: no line leaves those points
+without crossing the target. Clouds come without their viewpoints, but a point is seen from within
+``SIGHT_ANGLE`` of its normal. A point every line of whose cone meets the target is *hidden*; a
+line of it that crosses only surface no point lies near (``SIGHT_GAP`` spacings off: a closure) is
+a line it may have been seen along, and the target's solid along it is carved away. Where every
+line is blocked by surface the points hold (a crease between two seen parts), nothing is carved.
+
+Measured (range scans, 6 views, 30k points, Poisson targets, 32 lines a point): hidden points that
+have such a line, at 6 spacings: a cup 4.6%, a cap 2.1%, cad_nmc_sample0 2.0% of the points;
+armadillo, homer, elephant 0-0.03% (their hidden points sit in creases, blocked by seen surface).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .tuning import MIN_REVEALING, SIGHT_ANGLE, SIGHT_GAP, SIGHT_LINES, SIGHT_POINTS
+
+__all__ = ["CarvedSurface", "carve_sightlines", "sight_directions"]
+
+# Crossings followed along a line before it counts as blocked (a line through a closure leaves it
+# after one or two).
+MAX_CROSSINGS = 4
+# Every PROBE-th line of a cone is cast first (carve_sightlines).
+PROBE = 8
+
+
+class CarvedSurface:
+    """A closed target with the space its points were seen through carved out.
+
+    Attributes
+    ----------
+    vertices, triangles : (v, 3) float64, (t, 3) int64
+        The base target's triangles outside the carved space, and the boundary of the carved space
+        inside the base's solid (Marching Cubes at the carve grid): a soup that is only sampled,
+        measured against and snapped to; :meth:`inside` decides inside.
+    resolution : int
+        The base target's.
+    carved : (r, r, r) bool
+        Carved nodes of a grid over ``[-1, 1]^3``.
+    """
+
+    dense = False
+
+    def __init__(self, base, vertices, triangles, carved):
+        from ..queries import InsideOutside
+
+        self.base, self.vertices, self.triangles, self.carved = base, vertices, triangles, carved
+        self.resolution = base.resolution
+        self._query = InsideOutside((vertices, triangles), allow_open=True)
+
+    def inside(self, queries: np.ndarray) -> np.ndarray:
+        """(q, 3) fit-frame points -> (q,) bool: inside the base target, not at a carved node (the nearest)."""
+        queries = np.asarray(queries, np.float64)
+        return self.base.inside(queries) & ~_at(self.carved, queries)
+
+    def distance(self, queries: np.ndarray) -> np.ndarray:
+        return self._query.unsigned_distance(queries)
+
+    def project(self, queries: np.ndarray) -> np.ndarray:
+        return np.asarray(queries, np.float64)
+
+
+def sight_directions(count: int, half_angle: float) -> np.ndarray:
+    """(count, 3) unit directions spread evenly (a Fibonacci spiral) over the cone of ``half_angle``
+    degrees about +z."""
+    k = np.arange(count) + 0.5
+    cos = 1.0 - k / count * (1.0 - np.cos(np.radians(half_angle)))
+    angle = np.pi * (3.0 - np.sqrt(5.0)) * k
+    sin = np.sqrt(1.0 - cos**2)
+    return np.c_[sin * np.cos(angle), sin * np.sin(angle), cos]
+
+
+def carve_sightlines(target, points, normals, spacing: float, resolution: int):
+    """``target``, or a :class:`CarvedSurface` of it where it hides points it should not.
+
+    Parameters
+    ----------
+    target : PoissonSurface
+        Closed, fit frame; the lines are cast into its ``scene``.
+    points, normals : (n, 3) float64
+        Fit frame, unit outward normals; every k-th point, at most ``SIGHT_POINTS``, is tested.
+    spacing : float
+        Median point spacing, fit frame.
+    resolution : int
+        Nodes per side of the carve grid over ``[-1, 1]^3``.
+    """
+    from scipy.spatial import cKDTree
+
+    step = max(1, -(-len(points) // SIGHT_POINTS))
+    tested, axes = points[::step], normals[::step]
+    scene = target.scene
+    origins, directions = _lines(tested + spacing * axes, axes)
+    # Every PROBE-th line first: a point that one of them leaves free is not hidden (the same
+    # outcome, at a fraction of the lines for a target that hides nothing).
+    probe = (np.arange(len(origins)) % SIGHT_LINES) % PROBE == 0
+    blocked = np.ones(len(origins), bool)
+    blocked[probe] = _meets(scene, origins[probe], directions[probe])
+    candidate = np.repeat(blocked.reshape(len(tested), SIGHT_LINES).all(axis=1), SIGHT_LINES)
+    if np.count_nonzero(candidate) < MIN_REVEALING * len(origins):
+        return target
+    tree = cKDTree(points)
+    origins, directions = origins[candidate], directions[candidate]
+    blocked, possible, length = _crossings(scene, origins, directions, tree, SIGHT_GAP * spacing)
+    hidden = blocked.reshape(-1, SIGHT_LINES).all(axis=1)
+    revealing = possible & np.repeat(hidden, SIGHT_LINES)
+    if np.count_nonzero(revealing.reshape(-1, SIGHT_LINES).any(axis=1)) < MIN_REVEALING * len(tested):
+        return target
+    carved = _carve_grid(target, origins[revealing], directions[revealing], length[revealing], points, normals, tree,
+                         SIGHT_GAP * spacing, resolution)
+    if not carved.any():
+        return target
+    vertices, triangles = _carved_mesh(target, carved)
+    return CarvedSurface(target, vertices, triangles, carved)
+
+
+def _lines(origins, axes):
+    """(n * SIGHT_LINES, 3) origins and directions: each point's cone about its normal."""
+    cone = sight_directions(SIGHT_LINES, SIGHT_ANGLE)
+    helper = np.where(np.abs(axes[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    first = np.cross(axes, helper)
+    first /= np.linalg.norm(first, axis=1, keepdims=True)
+    second = np.cross(axes, first)
+    directions = (cone[None, :, :1] * first[:, None] + cone[None, :, 1:2] * second[:, None]
+                  + cone[None, :, 2:] * axes[:, None]).reshape(-1, 3)
+    return np.repeat(origins, SIGHT_LINES, axis=0), directions
+
+
+def _meets(scene, origins, directions) -> np.ndarray:
+    """(m,) bool: the line from each origin along its direction meets the surface of ``scene``."""
+    import open3d as o3d
+
+    rays = np.hstack([origins, directions]).astype(np.float32)
+    return np.isfinite(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy())
+
+
+def _crossings(scene, origins, directions, tree, gap: float):
+    """Each line's ``(blocked, possible, length)``: it meets the target (``scene``); it crosses only
+    surface more than ``gap`` from every point and leaves within ``MAX_CROSSINGS``; how far to its last
+    crossing."""
+    import open3d as o3d
+
+    m = len(origins)
+    blocked, possible = np.zeros(m, bool), np.ones(m, bool)
+    length = np.zeros(m)
+    active = np.arange(m)
+    for crossing in range(MAX_CROSSINGS + 1):
+        start = origins[active] + (length[active] + 1e-6)[:, None] * directions[active]
+        rays = np.hstack([start, directions[active]]).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+        met = np.isfinite(hit)
+        if crossing == 0:
+            blocked[active] = met
+        if crossing == MAX_CROSSINGS:
+            possible[active[met]] = False  # still crossing: counted as blocked
+            break
+        active, hit = active[met], hit[met]
+        length[active] += hit + 1e-6
+        near = tree.query(origins[active] + length[active, None] * directions[active], workers=-1)[0] <= gap
+        possible[active[near]] = False
+        active = active[~near]
+        if not active.size:
+            break
+    return blocked, possible & blocked, length
+
+
+def _carve_grid(target, origins, directions, length, points, normals, tree, radius: float, resolution: int):
+    """(r, r, r) bool: the target's solid that a ball of ``radius`` reaches from outside without
+    touching a point (as an alpha wrap carves), in the pieces the lines pass through to their last
+    crossing; less the nodes behind a point (against its normal) within two nodes of it, the wall
+    under the points."""
+    from scipy import ndimage
+
+    node = 2.0 / (resolution - 1)
+    counts = np.ceil((length + node) / (0.5 * node)).astype(np.int64)
+    line = np.repeat(np.arange(len(origins)), counts)
+    along = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)) * (0.5 * node)
+    index = np.rint((origins[line] + along[:, None] * directions[line] + 1.0) / node).astype(np.int64)
+    index = index[np.all((index >= 0) & (index < resolution), axis=1)]
+    seen = np.zeros((resolution,) * 3, bool)
+    seen[tuple(index.T)] = True
+    axis = np.linspace(-1.0, 1.0, resolution)
+    nodes = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    free = np.isinf(tree.query(nodes, distance_upper_bound=radius, workers=-1)[0]).reshape(seen.shape)
+    piece, _ = ndimage.label(free)
+    edge = np.unique(np.concatenate([np.take(piece, [0, -1], axis=a).ravel() for a in range(3)]))
+    outside = _among(piece, edge)
+    reach = ndimage.distance_transform_edt(~outside) * node <= radius
+    low, high = target.vertices.min(axis=0), target.vertices.max(axis=0)
+    reach &= np.all((nodes >= low) & (nodes <= high), axis=1).reshape(reach.shape)  # outside its box: outside
+    solid = np.zeros_like(reach)
+    solid[reach] = target.inside(nodes[reach.ravel()])
+    piece, _ = ndimage.label(solid | (seen & reach))
+    carved = _among(piece, np.unique(piece[seen])) & solid
+    where = np.argwhere(carved)
+    position = where * node - 1.0
+    distance, nearest = tree.query(position, workers=-1)
+    behind = np.einsum("ij,ij->i", position - points[nearest], normals[nearest]) < 0
+    carved[tuple(where[behind & (distance < 2.0 * node)].T)] = False
+    return carved
+
+
+def _carved_mesh(target, carved):
+    """The carved target's triangles: the base's outside the carved nodes, and the Marching Cubes
+    boundary of the carved space inside the base's solid (near the carve only)."""
+    from scipy import ndimage
+
+    from .fields import _marching_cubes
+
+    size = carved.shape[0]
+    node = 2.0 / (size - 1)
+    grown = ndimage.binary_dilation(carved, iterations=2)
+    low = np.maximum(np.argwhere(grown).min(axis=0) - 1, 0)
+    high = np.minimum(np.argwhere(grown).max(axis=0) + 2, size)
+    box = tuple(slice(a, b) for a, b in zip(low, high))
+    axes = [np.arange(a, b) * node - 1.0 for a, b in zip(low, high)]
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    solid = target.inside(nodes).reshape(grown[box].shape) & ~carved[box]
+    field = ndimage.gaussian_filter(np.where(solid, -1.0, 1.0), 0.7)
+    field = np.pad(field, 1, constant_values=1.0)  # closed at the sub-grid's faces
+    vertices, triangles = _marching_cubes(field)
+    vertices = (vertices - 1.0 + low) * node - 1.0
+    near = ndimage.binary_dilation(carved)
+    new = triangles[_at(near, vertices[triangles].mean(axis=1))]
+    old = target.triangles[~_at(near, target.vertices[target.triangles].mean(axis=1))]
+    vertices = np.vstack([target.vertices, vertices])
+    triangles = np.vstack([old, new + len(target.vertices)])
+    used = np.zeros(len(vertices), bool)
+    used[triangles] = True
+    return vertices[used], (np.cumsum(used) - 1)[triangles]
+
+
+def _among(labels, chosen) -> np.ndarray:
+    """``labels`` (an ndimage.label array) in ``chosen``, background (0) never."""
+    table = np.zeros(labels.max() + 1, bool)
+    table[chosen] = True
+    table[0] = False
+    return table[labels]
+
+
+def _at(mask, queries) -> np.ndarray:
+    """(q,) bool: ``mask`` (a grid over ``[-1, 1]^3``) at the nearest node of each (q, 3) fit-frame
+    point (False outside)."""
+    size = mask.shape[0]
+    index = np.rint((queries + 1.0) / (2.0 / (size - 1))).astype(np.int64)
+    within = np.all((index >= 0) & (index < size), axis=1)
+    out = np.zeros(len(index), bool)
+    out[within] = mask[tuple(index[within].T)]
+    return out
