@@ -10,9 +10,9 @@ line of it that crosses only surface no point lies near (``SIGHT_GAP`` spacings 
 a line it may have been seen along, and the target's solid along it is carved away. Where every
 line is blocked by surface the points hold (a crease between two seen parts), nothing is carved.
 
-Measured (range scans, 6 views, 30k points, Poisson targets, 32 lines a point): hidden points that
-have such a line, at 6 spacings: a cup 4.6%, a cap 2.1%, cad_nmc_sample0 2.0% of the points;
-armadillo, homer, elephant 0-0.03% (their hidden points sit in creases, blocked by seen surface).
+How many points are hidden with such a line, on which dev clouds it carves and what that does
+(including where points were sampled rather than seen, and the carve is wrong): beside
+``MIN_REVEALING`` in :mod:`voro3d.pointcloud.tuning`.
 """
 from __future__ import annotations
 
@@ -175,6 +175,8 @@ def _carve_grid(target, origins, directions, length, points, normals, tree, radi
     under the points."""
     from scipy import ndimage
 
+    from ..sampling import grid_nodes
+
     node = 2.0 / (resolution - 1)
     counts = np.ceil((length + node) / (0.5 * node)).astype(np.int64)
     line = np.repeat(np.arange(len(origins)), counts)
@@ -183,8 +185,7 @@ def _carve_grid(target, origins, directions, length, points, normals, tree, radi
     index = index[np.all((index >= 0) & (index < resolution), axis=1)]
     seen = np.zeros((resolution,) * 3, bool)
     seen[tuple(index.T)] = True
-    axis = np.linspace(-1.0, 1.0, resolution)
-    nodes = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    nodes = grid_nodes(resolution)
     free = np.isinf(tree.query(nodes, distance_upper_bound=radius, workers=-1)[0]).reshape(seen.shape)
     piece, _ = ndimage.label(free)
     edge = np.unique(np.concatenate([np.take(piece, [0, -1], axis=a).ravel() for a in range(3)]))
@@ -210,6 +211,7 @@ def _carved_mesh(target, carved):
     from scipy import ndimage
 
     from .fields import _marching_cubes
+    from .poisson import _reindexed
 
     size = carved.shape[0]
     node = 2.0 / (size - 1)
@@ -231,7 +233,7 @@ def _carved_mesh(target, carved):
     triangles = np.vstack([old, new + len(target.vertices)])
     used = np.zeros(len(vertices), bool)
     used[triangles] = True
-    return vertices[used], (np.cumsum(used) - 1)[triangles]
+    return _reindexed(vertices, triangles, used)
 
 
 def _among(labels, chosen) -> np.ndarray:
