@@ -521,9 +521,11 @@ def test_poisson_depth_goes_finer_only_where_the_points_are_dense():
 def test_the_mesh_is_split_before_the_snap_only_where_dense_points_made_the_target_finer():
     from voro3d.pointcloud.resolution import refine_levels
 
-    assert refine_levels("poisson", poisson_depth(64, 0.002), 64) == 1  # 1M bunny points
-    assert refine_levels("poisson", poisson_depth(64, 0.0065), 64) == 0  # 100k
-    assert refine_levels("imls", 9, 64) == refine_levels("sheet", 9, 64) == 0  # their field follows the grid
+    assert refine_levels("poisson", poisson_depth(64, 0.002), 64, 128) == 2  # 1M bunny points: to the octree cells
+    assert refine_levels("poisson", 9, 64, 256) == 1
+    assert refine_levels("poisson", 10, 64, 64) == 2  # a grid given by hand: at most MAX_REFINE
+    assert refine_levels("poisson", poisson_depth(64, 0.0065), 64, 90) == 0  # 100k
+    assert refine_levels("imls", 9, 64, 128) == refine_levels("sheet", 9, 64, 128) == 0  # their field follows the grid
 
 
 def test_node_distance_matches_a_query_of_every_node():

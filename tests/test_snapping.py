@@ -95,6 +95,49 @@ def test_shared_positions_stay_and_bad_parameters_are_named():
         snap_to_surface(vertices, triangles, (np.full((3, 3), np.nan), np.array([[0, 1, 2]])), voxel=1.0)
     with pytest.raises(ValueError, match="max_turn"):
         snap_to_surface(vertices, triangles, sphere(), voxel=1.0, max_turn=91)
+    with pytest.raises(ValueError, match="fit must be"):
+        snap_to_surface(vertices, triangles, sphere(), voxel=1.0, fit="points")
+
+
+def voromesh_ball(count=3000, radius=0.6, seed=0):
+    generators = np.random.default_rng(seed).uniform(-1, 1, (count, 3))
+    return clean_surface(*voronoi_surface(generators, np.linalg.norm(generators, axis=1) < radius))[:2]
+
+
+def test_fit_vertices_puts_each_moved_vertex_on_the_surface():
+    from voro3d.geometry import split_triangles
+
+    vertices, triangles, _ = split_triangles(*voromesh_ball(), 2)
+    snapped, info = snap_to_surface(vertices, triangles, sphere(), voxel=0.6, fit="vertices")
+    move = np.linalg.norm(snapped - vertices, axis=1)
+    moved = (move > 0) & (move < 0.25 * 0.6 * (1 - 1e-9))  # not stopped by max_move
+    assert info.moved >= moved.sum() > 0.5 * len(vertices)
+    # float32, as Open3D finds nearest points; the sphere's own chords are about 1e-3 deep.
+    assert distance_to(sphere(), snapped[moved]).max() < 1e-5
+    assert distance_to(sphere(), vertices[moved]).mean() > 100 * distance_to(sphere(), snapped[moved]).mean()
+    report = check_watertight((snapped, triangles))
+    assert report.watertight and report.self_intersecting_pairs == 0
+
+
+@pytest.mark.parametrize("fit", ["faces", "vertices"])
+def test_no_triangle_a_snap_moves_turns_or_unfolds_a_star_and_faces_keep_their_shapes(fit):
+    # A target with bumps finer than the ball's facets: about half the vertices are held, in chains.
+    from voro3d.geometry import smallest_angles, split_triangles
+    from voro3d.snapping import MIN_ANGLE, _graph_stars, _normals
+
+    vertices, triangles, _ = split_triangles(*voromesh_ball(), 1)
+    bumpy = sphere()
+    bumpy = (bumpy[0] * (1 + 0.05 * np.sin(25 * bumpy[0][:, :1]) * np.cos(21 * bumpy[0][:, 1:2])), bumpy[1])
+    snapped, info = snap_to_surface(vertices, triangles, bumpy, voxel=0.15, max_turn=70.0, fit=fit)
+    assert info.held > 0.3 * len(vertices) and info.moved > 0.3 * len(vertices)
+    before, after = _normals(vertices, triangles), _normals(snapped, triangles)
+    cosine = np.einsum("ij,ij->i", before, after) / np.linalg.norm(before, axis=1) / np.linalg.norm(after, axis=1)
+    assert cosine.min() > np.cos(np.radians(70.0))
+    thinned = smallest_angles(snapped, triangles) < np.minimum(smallest_angles(vertices, triangles), MIN_ANGLE)
+    assert not thinned.any() if fit == "faces" else thinned.any()  # fitted by its vertices, it follows the surface
+    assert np.all(_graph_stars(snapped, triangles) | ~_graph_stars(vertices, triangles))
+    report = check_watertight((snapped, triangles))
+    assert report.watertight and report.self_intersecting_pairs == 0
 
 
 @pytest.fixture(scope="module")
@@ -166,6 +209,13 @@ def test_refine_splits_the_triangles_before_the_fit_and_keeps_every_guarantee(to
     before, after = evaluate(fitted, source, n_samples=20000), evaluate(refined, source, n_samples=20000)
     # The split faces bend with the torus: measured CD 3.02 -> 2.91, NC 0.987 -> 0.993.
     assert after["chamfer_x1e5"] < before["chamfer_x1e5"] and after["nc"] > before["nc"]
+    # Split twice, the vertices go onto the torus: measured CD 2.89, NC 0.996.
+    twice = shape.to_open3d(surface=source, refine=2)
+    assert len(twice.triangles) == 16 * len(fitted.triangles)
+    report = check_watertight(twice)
+    assert report.watertight and report.self_intersecting_pairs == 0
+    finer = evaluate(twice, source, n_samples=20000)
+    assert finer["chamfer_x1e5"] < before["chamfer_x1e5"] and finer["nc"] > after["nc"]
     for refine, error in ((1, "needs a surface"), (-1, "refine must be"), (True, "refine must be")):
         with pytest.raises(ValueError, match=error):
             shape.to_open3d(refine=refine)

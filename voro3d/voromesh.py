@@ -102,7 +102,8 @@ class VoroMesh:
             Times the cleaned triangles are split in four (:func:`voro3d.geometry.split_triangles`:
             fewer where a split would make triangles cross) before the fit to ``surface``, which then
             shapes the surface past the grid's faces: for a ``surface`` finer than the grid (a cloud's
-            target from dense points). Needs ``surface``.
+            target from dense points). Split once, the faces are fitted; split more, the vertices go
+            onto ``surface`` (:func:`voro3d.snapping.snap_to_surface`'s ``fit``). Needs ``surface``.
         tolerance : float
             As in :func:`voro3d.extract_mesh`.
 
@@ -146,8 +147,10 @@ class VoroMesh:
                     from .geometry import split_triangles
                     from .snapping import snap_to_surface
 
-                    vertices, triangles, _ = split_triangles(vertices, triangles, refine)
-                    vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing)
+                    vertices, triangles, splits = split_triangles(vertices, triangles, refine)
+                    # Split more than once, the faces' chords no longer cut into the surface: the vertices go onto it.
+                    vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing,
+                                                  fit="vertices" if splits > 1 else "faces")
             return to_triangle_mesh(vertices, triangles, normals=True)
 
     def to_polygons(self, *, tolerance: float = DEFAULT_TOLERANCE):

@@ -410,7 +410,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                           voxel=grid_voxel(grid) / frame.scale, offset=target.offset / frame.scale if kind == "sheet" else 0.0,
                           tiles=n_tiles, seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
-                         smoothing=NOISY_SMOOTHING if noisy else 0.0, refine=refine_levels(kind, depth, target_grid))
+                         smoothing=NOISY_SMOOTHING if noisy else 0.0, refine=refine_levels(kind, depth, target_grid, grid))
     return shape, surface, info
 
 
@@ -440,7 +440,7 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
     mesh = shape.to_open3d(clean=clean, surface=(target.vertices, target.triangles) if snap else None,
                            smoothing=target.smoothing, refine=target.refine if snap else 0)
     done = ", cleaned" + ("" if not snap else " and fitted to the target" if not target.refine else
-                          ", each triangle split in four and fitted to the target") if clean else ""
+                          f", each triangle split in {4**target.refine} and fitted to the target") if clean else ""
     report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight{done}", time.perf_counter() - start)
     return mesh
 
