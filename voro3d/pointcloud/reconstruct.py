@@ -359,9 +359,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
             value, gradient, _ = imls(framed, gradient, widths, framed, tree=tree)
         framed = framed - value[:, None] * gradient
         normals = gradient
-    # A tiled cloud's target stays at the grid's depth: from its 1M-point subset at depth 9, 3M and 10M
-    # bunny points gave CD 0.594 and 0.595 in 44 s, at depth 8 0.594 and 0.589 in 21-25 s (bench_large --scaling).
-    depth = poisson_depth(target_grid, stats.median_spacing if subset is None else None)
+    depth = poisson_depth(target_grid, stats.median_spacing)
     resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
     filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
     kind, target, distance = _target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,

@@ -67,6 +67,10 @@ MAX_TARGET_GRID = 64
 # all the same (CD / NC the means of 5 evaluation seeds, 2026-12-04): armadillo 0.4601 / 0.9823 ->
 # 0.4610 / 0.9820 and 47.7 -> 31.2 s, bunny 0.5903 / 0.9903 -> 0.5911 / 0.9902 and 60.0 -> 30.5 s
 # (Poisson depth 9 alone: 0.4589, 0.5908): half the time for 0.1-0.2% CD, kept at depth 9.
+# The 1M-point subset of a denser cloud (pointcloud.tiles) reads its own spacing and goes to depth 9
+# as well (it stayed at the grid's depth 8 before the mesh was split to the target's cells): bunny,
+# 3M / 10M true-normal points, CD 0.595 / 0.589 -> 0.589 / 0.588, NC 0.9883 / 0.9885 -> 0.9933 /
+# 0.9929, 41 / 40 -> 53 / 53 s, 32k -> 510k faces (large_scaling.md; Poisson depth 9: 0.589, 0.9939).
 TARGET_CELL_SPACINGS = 1.5
 # Most midpoint splits of a dense cloud's mesh before its fit to the target (resolution.refine_levels):
 # each quadruples the faces. Two bring a 128 grid's triangles to a depth-9 target's cells (1M points:
