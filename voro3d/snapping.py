@@ -166,10 +166,11 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float, fit: str 
     weight_squares = np.ones(n)
     for c in range(3):
         weight_squares += np.bincount(triangles[:, c], minlength=n) * np.sum(face_points[:, c] ** 2)
-    edges = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    adjacency = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    adjacency = ((adjacency + adjacency.T) > 0).astype(np.float64)
-    neighbours = np.asarray(adjacency.sum(axis=1)).ravel()
+    if smoothing:
+        edges = triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        adjacency = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+        adjacency = ((adjacency + adjacency.T) > 0).astype(np.float64)
+        neighbours = np.asarray(adjacency.sum(axis=1)).ravel()
     fitted = vertices.copy()
     for step in range(iterations):
         points = np.vstack([fitted, np.einsum("bk,tkd->tbd", face_points, fitted[triangles]).reshape(-1, 3)])
@@ -185,10 +186,9 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float, fit: str 
         for c in range(3):
             share = np.einsum("b,tbd->td", face_points[:, c], face_residual)
             pull += np.stack([np.bincount(triangles[:, c], share[:, k], minlength=n) for k in range(3)], axis=1)
-        # The smoothing term pulls towards the mean of the neighbours, weighted like the fit's.
-        umbrella = adjacency @ fitted / neighbours[:, None] - fitted
-        fitted += damping * (pull + smoothing * weight_squares[:, None] * umbrella) \
-            / ((1 + smoothing) * weight_squares)[:, None]
+        if smoothing:  # a pull towards the mean of the neighbours, weighted like the fit's
+            pull += smoothing * weight_squares[:, None] * (adjacency @ fitted / neighbours[:, None] - fitted)
+        fitted += damping * pull / ((1 + smoothing) * weight_squares)[:, None]
     return fitted
 
 
