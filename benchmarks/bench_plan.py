@@ -10,13 +10,18 @@ other fields left ``"auto"``):
   flapping past the points (``MAX_POISSON_ESCAPE``), Poisson kept (``target="poisson"``);
 * ``shell``: where the offset shell was chosen (``SHEET_*``), the target it replaced (``"poisson"``
   for a closed cloud, else ``"imls"``);
-* ``closed``: the target the other way between Poisson and IMLS (``CLOSED_LEVEL``).
+* ``closed``: the target the other way between Poisson and IMLS (``CLOSED_LEVEL``);
+* ``hull``: the target cut back to the points' hull (``hull="on"``; auto leaves it off), where
+  the target is not the shell.
 
 A rule that did not fire on a cloud is not rerun for ``poisson escape`` and ``shell`` (its
 result is the auto one). CD x1e5, NC, F1 against the mesh; a run refused by
-``reconstruct``'s check counts as an error. Writes ``benchmarks/results/plan.{md,json}``.
+``reconstruct``'s check counts as an error. Writes ``benchmarks/results/plan.{md,json}``, or
+``plan_<rules>.{md,json}`` for some of the rules (``--rules``), and with ``--pictures`` a PNG
+beside them: each cloud named auto, with each rule turned, and the mesh it was sampled from.
 
-    python benchmarks/bench_plan.py [--shapes ...] [--conditions ...] [--grid 64]
+    python benchmarks/bench_plan.py [--shapes ...] [--conditions ...] [--rules ...] [--grid 64] [--jobs 1]
+                                    [--pictures SHAPE:CONDITION ...]
 """
 from __future__ import annotations
 
@@ -35,7 +40,7 @@ OUT = ROOT / "benchmarks" / "results"
 SHAPES = ("organic_bunny.off", "cad_fandisk.obj", "organic_armadillo.obj", "abc_00000005.stl", "thingi32_75655.obj",
           "abc_00000007.stl", "organic_cow.obj", "cad_rocker-arm.obj")
 CONDITIONS = ("clean 5k", "noise 0.5%", "third missing", "range scan 1 view", "range scan 3 views")
-RULES = ("denoise", "poisson escape", "shell", "closed")
+RULES = ("denoise", "poisson escape", "shell", "closed", "hull")
 
 
 def _variants(info) -> dict:
@@ -49,6 +54,8 @@ def _variants(info) -> dict:
         variants["poisson escape"] = {"target": "poisson"}
     if info.plan.target == "sheet":
         variants["shell"] = {"target": "poisson" if closed else "imls"}
+    else:
+        variants["hull"] = {"hull": "on"}
     return variants
 
 
@@ -69,7 +76,7 @@ def _run(points, source, grid, plan=None) -> tuple[dict, object]:
                 plan=str(info.plan)), info
 
 
-def run_cloud(name: str, condition: str, grid) -> dict:
+def run_cloud(name: str, condition: str, grid, rules=RULES) -> dict:
     from bench_pointcloud import make_cloud
     from voro3d.io import load_mesh
 
@@ -79,12 +86,14 @@ def run_cloud(name: str, condition: str, grid) -> dict:
     row = dict(shape=name, condition=condition, auto=auto, rules={})
     if info is not None:
         for rule, fields in _variants(info).items():
+            if rule not in rules:
+                continue
             row["rules"][rule] = dict(_run(points, source, grid, fields)[0], set=fields)
     print(json.dumps(row), flush=True)
     return row
 
 
-def _table(rows: list, grid) -> str:
+def _table(rows: list, grid, rules=RULES) -> str:
     lines = [f"# The plan's rules, on and off ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs)", "",
              f"{len({r['shape'] for r in rows})} dev meshes x {len({r['condition'] for r in rows})} conditions, no normals "
              f"given, grid {grid} (`python benchmarks/bench_plan.py`). Per rule and condition: the clouds where "
@@ -93,7 +102,7 @@ def _table(rows: list, grid) -> str:
              "error and is left out of the means.", "",
              "| rule | condition | clouds | auto CD / NC / F1 | turned CD / NC / F1 | turned better (CD) | errors auto / turned |",
              "|---|---|---|---|---|---|---|"]
-    for rule in RULES:
+    for rule in rules:
         for condition in dict.fromkeys(r["condition"] for r in rows):
             pairs = [(r["auto"], r["rules"][rule]) for r in rows if r["condition"] == condition and rule in r["rules"]]
             if not pairs:
@@ -110,12 +119,36 @@ def _table(rows: list, grid) -> str:
                          f"{mean(auto, 'f1'):.3f} | {mean(turned, 'cd'):.2f} / {mean(turned, 'nc'):.3f} / "
                          f"{mean(turned, 'f1'):.3f} | {better} of {len(good)} | {errors[0]} / {errors[1]} |")
     lines += ["", "Per cloud (CD; the plan the auto run chose):", "", "| shape | condition | auto plan | auto CD | "
-              + " | ".join(RULES) + " |", "|---|---|---|---|" + "---|" * len(RULES)]
+              + " | ".join(rules) + " |", "|---|---|---|---|" + "---|" * len(rules)]
     for r in rows:
-        cells = [_cd(r["rules"][rule]) if rule in r["rules"] else "" for rule in RULES]
+        cells = [_cd(r["rules"][rule]) if rule in r["rules"] else "" for rule in rules]
         lines.append(f"| {r['shape']} | {r['condition']} | {r['auto'].get('plan', '')} | {_cd(r['auto'])} | "
                      + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def figure(clouds, grid, rules, out_png) -> None:
+    """``SHAPE:CONDITION`` clouds drawn one row each: auto, each of ``rules`` turned, the mesh."""
+    from bench_pointcloud import make_cloud
+    from figures import render_rows
+
+    from voro3d.io import load_mesh
+    from voro3d.pointcloud import cloud_mesh, reconstruct_points
+
+    rows = []
+    for cloud in clouds:
+        name, condition = cloud.split(":", 1)
+        source = load_mesh(DEV / name)
+        points = make_cloud(source, condition)
+        shape, target, info = reconstruct_points(points, grid=grid)
+        meshes, titles = [cloud_mesh(shape, target)], [f"{Path(name).stem}, {condition}: auto"]
+        for rule, fields in _variants(info).items():
+            if rule in rules:
+                shape, target, _ = reconstruct_points(points, grid=grid, plan=fields)
+                meshes.append(cloud_mesh(shape, target))
+                titles.append(f"{rule}: {', '.join(f'{k} {v}' for k, v in fields.items())}")
+        rows.append((meshes + [source], titles + ["the mesh"]))
+    render_rows(rows, out_png, size=(420, 340))
 
 
 def _cd(run: dict) -> str:
@@ -125,17 +158,35 @@ def _cd(run: dict) -> str:
 def main() -> None:
     parser = dev_parser(__doc__, SHAPES, OUT)
     parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
+    parser.add_argument("--rules", nargs="+", default=list(RULES), choices=RULES)
     parser.add_argument("--grid", default="64", help="an integer, or auto")
+    parser.add_argument("--jobs", type=int, default=1, help="clouds run at once, each in its own process")
+    parser.add_argument("--pictures", nargs="+", default=[], metavar="SHAPE:CONDITION",
+                        help="clouds drawn auto, with each rule turned and the mesh, into the results' PNG")
+    parser.add_argument("--pictures-only", action="store_true", help="draw --pictures without running the table")
     args = parser.parse_args()
     grid = args.grid if args.grid == "auto" else int(args.grid)
     shapes = dev_shapes(args.shapes, DEV)
     sys.path.insert(0, str(ROOT))
-    rows = [run_cloud(name, condition, grid) for name in shapes for condition in args.conditions]
+    rules = tuple(rule for rule in RULES if rule in args.rules)
+    stem = "plan" if rules == RULES else "plan_" + "_".join(rule.replace(" ", "-") for rule in rules)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "plan.json").write_text(json.dumps(dict(date=time.strftime("%Y-%m-%d %H:%M"), grid=grid,
-                                                        cpus=os.cpu_count(), rows=rows), indent=1))
-    (args.out / "plan.md").write_text(_table(rows, grid))
-    print(_table(rows, grid))
+    if args.pictures:
+        figure(args.pictures, grid, rules, args.out / f"{stem}.png")
+    if args.pictures_only:
+        return
+    tasks = [(name, condition, grid, rules) for name in shapes for condition in args.conditions]
+    if args.jobs > 1:
+        import multiprocessing
+
+        with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
+            rows = pool.starmap(run_cloud, tasks, chunksize=1)
+    else:
+        rows = [run_cloud(*task) for task in tasks]
+    (args.out / f"{stem}.json").write_text(json.dumps(dict(date=time.strftime("%Y-%m-%d %H:%M"), grid=grid, jobs=args.jobs,
+                                                           cpus=os.cpu_count(), rows=rows), indent=1))
+    (args.out / f"{stem}.md").write_text(_table(rows, grid, rules))
+    print(_table(rows, grid, rules))
 
 
 if __name__ == "__main__":

@@ -624,13 +624,14 @@ def main():
         return
     import voro3d.pointcloud.reconstruct as reconstruct_module
     import voro3d.pointcloud.surface as surface_module
+    import voro3d.pointcloud.targets as targets_module
 
     if args.shell_depth is not None:
-        reconstruct_module.SHELL_DEPTH = None if args.shell_depth == "none" else float(args.shell_depth)
+        targets_module.SHELL_DEPTH = None if args.shell_depth == "none" else float(args.shell_depth)
     if args.bridge_gap is not None:
         surface_module.MAX_BRIDGE_GAP = args.bridge_gap
     if args.hole_level is not None:
-        reconstruct_module.HOLE_LEVEL = args.hole_level
+        targets_module.HOLE_LEVEL = args.hole_level
     if args.dense_spacings is not None:
         reconstruct_module.DENSE_SPACINGS = args.dense_spacings
     from voro3d.io import MESH_SUFFIXES, load_mesh

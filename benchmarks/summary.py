@@ -132,6 +132,15 @@ out past the points pays on every 3-view scan where it fires (CD 69 against 843)
 one cloud (a cup lid, CD 38 against 1,356); Poisson for closed clouds and IMLS, held within
 `SHELL_DEPTH` of the points, for open ones pay on every condition (1-view scans: CD 348 against
 1,133 with Poisson, NC 0.734 against 0.599; 3-view: 73 against 289).""",
+    "plan_hull": """\
+`benchmarks/bench_plan.py --rules hull --jobs 2`: the plan's `hull` (the target cut back to the points'
+convex hull, `voro3d/pointcloud/hull.py`) on against `auto` (off), 28 dev meshes x 4 partial
+conditions, no normals. On 3-view range scans it pays on 25 of 28 (CD 49.9 against 30.0: Poisson's
+and IMLS's closures swell past the hull); 6-view scans are never cut; 1-view scans trade CD (334
+against 352) for NC and F1; a third missing loses the closure's continuation past the cut (CD 325
+against 451). No measure of the cloud told the last apart from 3-view scans, so `auto` leaves it off.
+The picture (`--pictures-only --pictures SHAPE:CONDITION ...`): the arm's hand, a ball without the
+cut, a block with it; the lid's underside; the cut-off back of a third-missing cow flattened.""",
     "colours": """\
 `benchmarks/bench_colours.py`: a cloud's colours on its mesh, by position (smooth) and by |normal|
 (fast), voro3d with its mesh split flat to about one vertex per point, without the split, and

@@ -58,7 +58,8 @@ def test_fit_takes_the_same_grid_rule(tmp_path, knot, capsys):
 
 
 @pytest.mark.parametrize("extra, match", [
-    (["--denoise", "on"], "--normals, --denoise, --filter and --target apply to point clouds only"),
+    (["--denoise", "on"], "--normals, --denoise, --filter, --target and --hull apply to point clouds only"),
+    (["--hull", "on"], "--normals, --denoise, --filter, --target and --hull apply to point clouds only"),
     (["--method", "learned", "--steps", "5"], "--method learned takes no --steps (only --method fit uses it)"),
 ])
 def test_errors_name_the_flags(tmp_path, knot, capsys, extra, match):

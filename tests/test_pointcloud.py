@@ -10,9 +10,8 @@ from voro3d.metrics import evaluate
 from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio, imls, local_dimension, outlier_mask,
                                reconstruct_points, repair_normals, transfer_colors)
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
-from voro3d.pointcloud.reconstruct import MAX_POISSON_ESCAPE
 from voro3d.pointcloud.surface import sheet_surface, target_surface, winding_level
-from voro3d.pointcloud.tuning import SHELL_DEPTH
+from voro3d.pointcloud.tuning import MAX_POISSON_ESCAPE, SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
 from voro3d.queries import point_areas
 from voro3d.sampling import sample_surface

@@ -18,7 +18,7 @@ from ._extras import MissingExtra
 # The choices of a cloud's plan (voro3d.pointcloud.CloudPlan; a test keeps them equal), written out
 # so that --help need not import the point-cloud package; "auto" lets the analysis decide.
 PLAN_FIELDS = {"normals": ("auto", "check", "trust", "estimate"), "denoise": ("auto", "on", "off"),
-               "filter": ("auto", "on", "off"), "target": ("auto", "poisson", "imls", "sheet")}
+               "filter": ("auto", "on", "off"), "target": ("auto", "poisson", "imls", "sheet"), "hull": ("auto", "on", "off")}
 
 __all__ = ["build_parser", "main"]
 
@@ -143,8 +143,8 @@ def positive_argument(text: str) -> int:
 _FLAG_NAMES = [
     (re.compile(r"allow_open=True"), "--allow-open"),
     (re.compile(r"plan applies to point clouds only; a mesh input takes plan=None"),
-     "--normals, --denoise, --filter and --target apply to point clouds only"),
-    (re.compile(r"\bplan (normals|denoise|filter|target)\b"), r"--\1"),
+     "--normals, --denoise, --filter, --target and --hull apply to point clouds only"),
+    (re.compile(r"\bplan (normals|denoise|filter|target|hull)\b"), r"--\1"),
     (re.compile(r"reconstruct points sampled on it as a point cloud"), "reconstruct points sampled on it (--sample N)"),
     (re.compile(r"method='(\w+)'"), r"--method \1"),
     (re.compile(r"\b(steps|seed|device|grid|allow_open)\b(?= (must|applies|or|\())"),
@@ -310,6 +310,9 @@ def build_parser() -> argparse.ArgumentParser:
     rebuild.add_argument("--target", choices=PLAN_FIELDS["target"], default="auto",
                          help="point clouds: the surface fitted to: screened Poisson, IMLS (open scans) or a shell "
                               "around the points (thin walls) (default: from the cloud; the plan chosen is printed)")
+    rebuild.add_argument("--hull", choices=PLAN_FIELDS["hull"], default="auto",
+                         help="point clouds: cut the target back to the points' convex hull, for range scans from a "
+                              "few viewpoints (default: off)")
     _allow_open_option(rebuild)
     rebuild.add_argument("--engine", choices=("local", "ray"), default="local",
                          help="where a large cloud's tiles are fitted (over 2 million points): a local process pool "

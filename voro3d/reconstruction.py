@@ -33,7 +33,8 @@ import numpy as np
 from ._validate import MESH_AUTO_GRID, as_points, grid_option, mesh_grid, method_options, positive_int, trusted
 from .pointcloud.plan import as_plan
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
-from .pointcloud.tiles import ENGINES, analysis_subset, check_stride
+from .pointcloud.preprocess import check_stride
+from .pointcloud.tiles import ENGINES, analysis_subset
 from .pointcloud.tuning import MAX_HULL_VOLUME, MAX_MEDIAN_DISTANCE, SEPARATE_POINTS
 
 __all__ = ["reconstruct", "VoroMeshStage"]
@@ -79,8 +80,9 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     plan : voro3d.pointcloud.CloudPlan, dict or None
         Point clouds: what to do with them (:class:`voro3d.pointcloud.CloudPlan`): ``normals``
         (``"check"`` the given ones, ``"trust"`` them, or ``"estimate"``), ``denoise`` (the pass
-        that moves noisy points onto their smooth surface), ``filter`` (of a Poisson target) and
-        ``target`` (``"poisson"``, ``"imls"`` or ``"sheet"``); a dict may set some, e.g.
+        that moves noisy points onto their smooth surface), ``filter`` (of a Poisson target),
+        ``target`` (``"poisson"``, ``"imls"`` or ``"sheet"``) and ``hull`` (``"on"``: the target
+        cut back to the points' convex hull, for range scans); a dict may set some, e.g.
         ``plan={"denoise": "off"}``. Fields left ``"auto"`` (all, by default) are decided from the
         cloud; ``progress`` prints the plan chosen. Meshes: must stay None.
     allow_open : bool

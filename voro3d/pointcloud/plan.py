@@ -1,4 +1,4 @@
-"""The plan of a cloud's reconstruction: which normals, smoothing, filter and target surface.
+"""The plan of a cloud's reconstruction: which normals, smoothing, filter and target surface, and its cut.
 
 :func:`~voro3d.pointcloud.reconstruct.reconstruct_points` analyses the cloud (outliers, spacing,
 noise, the winding level of its oriented points), then settles each choice of a
@@ -50,16 +50,23 @@ class CloudPlan:
         enclose a volume (winding level over ``CLOSED_LEVEL``) and it does not flap out past them
         (``MAX_POISSON_ESCAPE``), else IMLS; then the shell where it fits the points much better
         (``SHEET_*``).
+    hull : {"auto", "on", "off"}
+        Cut the target's solid back to the points' convex hull, a voxel out
+        (:mod:`~voro3d.pointcloud.hull`; Poisson and IMLS targets): for range scans from a few
+        viewpoints, whose closure otherwise swells past everything the points bound. ``"auto"``:
+        off, for on clouds with a part cut away it takes the closure's continuation off with the
+        swelling, and no measure of the cloud yet tells the two apart (beside ``HULL_MARGIN_NODES``).
     """
 
     normals: str = "auto"
     denoise: str = "auto"
     filter: str = "auto"
     target: str = "auto"
+    hull: str = "auto"
 
     def __post_init__(self):
         for name, choices in (("normals", NORMALS), ("denoise", SWITCHES), ("filter", SWITCHES),
-                              ("target", TARGETS)):
+                              ("target", TARGETS), ("hull", SWITCHES)):
             if getattr(self, name) not in choices:
                 raise ValueError(f"plan {name} must be one of {choices}, got {getattr(self, name)!r}")
 
@@ -105,6 +112,11 @@ def settle_filter(plan: CloudPlan, *, smoothed: bool, noisy: bool, noise: float,
     if plan.filter != "auto":
         return plan.filter
     return "on" if smoothed and noisy and noise > HEAVY_NOISE * 2.0 / 2**depth else "off"
+
+
+def settle_hull(plan: CloudPlan, kind: str) -> str:
+    """The cut to the hull: only where asked for, of a Poisson or IMLS target (a shell hugs the points)."""
+    return "on" if plan.hull == "on" and kind != "sheet" else "off"
 
 
 def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance=None):

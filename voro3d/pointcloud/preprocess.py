@@ -5,15 +5,26 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .tuning import STATISTICS_SAMPLE, SUSPECT_FLATNESS, SUSPECT_OFFSET
+from .tuning import CHECK_POINTS, STATISTICS_SAMPLE, SUSPECT_FLATNESS, SUSPECT_OFFSET
 
-__all__ = ["CloudStats", "cloud_stats", "outlier_mask", "outlier_neighbours", "local_dimension", "fill_ratio", "merge_duplicates",
+__all__ = ["CloudStats", "check_stride", "cloud_stats", "stride", "outlier_mask", "outlier_neighbours", "local_dimension", "fill_ratio", "merge_duplicates",
            "separate_objects"]
 
 # Neighbours of the spacing and noise estimates.
 SPACING_NEIGHBOURS = 8
 NOISE_NEIGHBOURS = 24
 STRAY_NEIGHBOURS = 20
+
+
+def stride(count: int, at_most: int) -> int:
+    """k such that every k-th of ``count`` points is at most ``at_most`` points."""
+    return max(1, -(-count // at_most))
+
+
+def check_stride(count: int) -> int:
+    """k such that every k-th of ``count`` points, at most ``CHECK_POINTS`` of them, stand for all
+    in a check of the surface against the points (a mean, a median, a share)."""
+    return stride(count, CHECK_POINTS)
 
 
 def merge_duplicates(points: np.ndarray, *attributes):

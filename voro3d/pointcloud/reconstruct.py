@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import sys
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,16 +24,16 @@ from ..snapping import NOISY_SMOOTHING
 from ..geometry import grid_voxel
 from .normals import estimate_normals, orient_normals, sign_disagreement
 from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, outlier_neighbours
-from .poisson import poisson_depth, poisson_helper, poisson_surface
+from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
-from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_normals, sheet_if_closer, sheet_target
-from .surface import imls, target_surface, winding_level
+from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_hull, settle_normals
+from .surface import imls, winding_level
 from .debris import drop_stray_cells
-from .sightlines import CarvedSurface, carve_sightlines
-from .tiles import ENGINES, analysis_subset, check_stride, fit_in_tiles
-from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
-                     MAX_SIGN_DISAGREEMENT, NOISY, FILTER_WIDTH_PER_NOISE, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL,
-                     HOLE_LEVEL, SHELL_DEPTH, MAX_POISSON_ESCAPE, MIN_COVERAGE, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
+from .targets import build_target, check_coverage
+from .tiles import ENGINES, analysis_subset, fit_in_tiles
+from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE,
+                     MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS,
+                     MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -169,7 +168,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        one-sided scan the IMLS field near the points and their winding number away from them,
        held within ``SHELL_DEPTH`` of the points where they do not enclose it (a shell under the
        seen side, not a block out to the box), on a grid twice as fine as the VoroMesh grid,
-       meshed by Marching Cubes.
+       meshed by Marching Cubes. Either cut back to the points' convex hull where ``plan.hull``
+       asks (:mod:`~voro3d.pointcloud.hull`).
     5. The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` (75) of them from the target mesh,
        or, for a dense scan, the points themselves (:func:`~voro3d.pointcloud.resolution.target_samples`); the target
        labels the cells.
@@ -203,7 +203,7 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
         with what it chose and its time.
     plan : CloudPlan, dict or None
         The choices of steps 2-4 (:class:`~voro3d.pointcloud.plan.CloudPlan`: ``normals``,
-        ``denoise``, ``filter``, ``target``), or a dict of some of them; None or ``"auto"`` fields
+        ``denoise``, ``filter``, ``target``, ``hull``), or a dict of some of them; None or ``"auto"`` fields
         are decided from the cloud. ``info.plan`` is the plan as it ran.
     engine : {"local", "ray"}
         Where a tiled fit's tiles run: a local process pool, or Ray tasks
@@ -362,18 +362,18 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     depth = poisson_depth(target_grid, stats.median_spacing)
     resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
     filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
-    kind, target, distance = _target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
+    kind, target, distance = build_target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
                                      depth=depth, resolution=resolution, filtered=filtered == "on",
-                                     dense=dense and denoise == "off", helper=helper)
+                                     dense=dense and denoise == "off", hull=plan.hull == "on", helper=helper)
     if kind == "sheet":
         framed = given
     if kind != "poisson":
         filtered = "off"
-    _check_coverage(target, framed, widths, distance=distance if framed is given else None)
+    check_coverage(target, framed, widths, distance=distance if framed is given else None)
     surface_vertices = target.project(target.vertices)
-    plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind)
+    plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind, hull=settle_hull(plan, kind))
     seconds["surface"] = time.perf_counter() - start
-    report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{', carved where it hid points' if isinstance(target, CarvedSurface) else ''}"
+    report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + why for why in getattr(target, 'carves', []))}"
                  f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
                  f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}", seconds["surface"])
 
@@ -441,48 +441,6 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
                           f", each triangle split in {4**target.refine} and fitted to the target") if clean else ""
     report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight{done}", time.perf_counter() - start)
     return mesh
-
-
-def _target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
-            resolution: int, filtered: bool, dense: bool, helper):
-    """``(kind, target, distance)``: the target surface of ``plan.target`` (``choice``), the ``"auto"``
-    rule of :class:`~voro3d.pointcloud.plan.CloudPlan` when it is ``"auto"``, and the distance of
-    every :func:`check_stride`-th point of ``given`` to it where the rule measured it (else None). ``points`` are the points the field is
-    built from (smoothed or not), ``given`` the points as they came, for the shell; ``helper``
-    solves half of a split Poisson surface (:func:`~voro3d.pointcloud.poisson.poisson_surface`)."""
-    if choice == "sheet":
-        return "sheet", sheet_target(given, stats.median_spacing, resolution), None
-    target = None
-    if choice == "poisson" or (choice == "auto" and closed):
-        target = poisson_surface(points, normals, depth, filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None, helper=helper)
-        if choice == "auto" and target.escape(points) > MAX_POISSON_ESCAPE:
-            # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
-            target = None
-        else:
-            target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
-    kind = "poisson" if target is not None else "imls"
-    if target is None:
-        # Behind an open scan the solid is held within SHELL_DEPTH of the points (a shell under the
-        # seen side) unless they enclose it; a closed cloud's holes are closed at HOLE_LEVEL.
-        target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
-                                hole_level=max(level, HOLE_LEVEL) if closed else None,
-                                depth=None if closed else SHELL_DEPTH)
-    if choice == "auto" and not target.dense:
-        distance = target.distance(given[::check_stride(len(given))])
-        sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance)
-        return ("sheet", sheet, None) if sheet is not None else (kind, target, distance)
-    return kind, target, None
-
-
-def _check_coverage(target, points, widths, *, distance=None) -> None:
-    """Refuse a target surface that misses the points (read from every :func:`check_stride`-th, whose ``distance``
-    may be given): one that no volume behind them explains (a one-sided scan of a thin or open structure)."""
-    every = slice(None, None, check_stride(len(points)))
-    distance = target.distance(points[every]) if distance is None else distance
-    covered = float(np.mean(distance <= 2.0 * widths[every] + 2.0 / (target.resolution - 1)))
-    if covered < MIN_COVERAGE:
-        raise ValueError(f"no closed surface explains these points: only {100 * covered:.0f}% of them lie on the "
-                         "reconstructed surface (an open, one-sided scan of a thin or flat object?)")
 
 
 def _predict(target, grid: int, frame, *, model, threads):

@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .preprocess import stride
 from .tuning import MIN_REVEALING, SIGHT_ANGLE, SIGHT_GAP, SIGHT_LINES, SIGHT_POINTS
 
-__all__ = ["CarvedSurface", "carve_sightlines", "sight_directions"]
+__all__ = ["CarvedSurface", "carve_sightlines", "carved_mesh", "sight_directions"]
 
 # Crossings followed along a line before it counts as blocked (a line through a closure leaves it
 # after one or two).
@@ -42,15 +43,15 @@ class CarvedSurface:
         The base target's.
     carved : (r, r, r) bool
         Carved nodes of a grid over ``[-1, 1]^3``.
+    why : str
+        What was carved, for the plan's report: ``"carved where it hid points"`` here.
     """
 
-    dense = False
-
-    def __init__(self, base, vertices, triangles, carved):
+    def __init__(self, base, vertices, triangles, carved, *, why: str = "carved where it hid points"):
         from ..queries import InsideOutside
 
-        self.base, self.vertices, self.triangles, self.carved = base, vertices, triangles, carved
-        self.resolution = base.resolution
+        self.base, self.vertices, self.triangles, self.carved, self.why = base, vertices, triangles, carved, why
+        self.resolution, self.dense = base.resolution, base.dense
         self._query = InsideOutside((vertices, triangles), allow_open=True)
 
     def inside(self, queries: np.ndarray) -> np.ndarray:
@@ -61,7 +62,13 @@ class CarvedSurface:
     def distance(self, queries: np.ndarray) -> np.ndarray:
         return self._query.unsigned_distance(queries)
 
+    @property
+    def carves(self) -> list:
+        """What was carved, this carve's base's first."""
+        return getattr(self.base, "carves", []) + [self.why]
+
     def project(self, queries: np.ndarray) -> np.ndarray:
+        """Its vertices are on the surface already (the base's were projected before the carve)."""
         return np.asarray(queries, np.float64)
 
 
@@ -91,7 +98,7 @@ def carve_sightlines(target, points, normals, spacing: float, resolution: int):
     """
     from scipy.spatial import cKDTree
 
-    step = max(1, -(-len(points) // SIGHT_POINTS))
+    step = stride(len(points), SIGHT_POINTS)
     tested, axes = points[::step], normals[::step]
     scene = target.scene
     origins, directions = _lines(tested + spacing * axes, axes)
@@ -114,8 +121,7 @@ def carve_sightlines(target, points, normals, spacing: float, resolution: int):
                          SIGHT_GAP * spacing, resolution)
     if not carved.any():
         return target
-    vertices, triangles = _carved_mesh(target, carved)
-    return CarvedSurface(target, vertices, triangles, carved)
+    return CarvedSurface(target, *carved_mesh(target.inside, target.vertices, target.triangles, carved), carved)
 
 
 def _lines(origins, axes):
@@ -205,9 +211,10 @@ def _carve_grid(target, origins, directions, length, points, normals, tree, radi
     return carved
 
 
-def _carved_mesh(target, carved):
-    """The carved target's triangles: the base's outside the carved nodes, and the Marching Cubes
-    boundary of the carved space inside the base's solid (near the carve only)."""
+def carved_mesh(inside, vertices, triangles, carved):
+    """The triangles of a target with the ``carved`` nodes (a grid over ``[-1, 1]^3``) taken out of
+    its solid: its own (``vertices``, ``triangles``) away from the carved nodes, and the Marching Cubes
+    boundary of the carved space inside its solid (the ``inside`` test), near the carve only."""
     from scipy import ndimage
 
     from .fields import _marching_cubes
@@ -221,16 +228,16 @@ def _carved_mesh(target, carved):
     box = tuple(slice(a, b) for a, b in zip(low, high))
     axes = [np.arange(a, b) * node - 1.0 for a, b in zip(low, high)]
     nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    solid = target.inside(nodes).reshape(grown[box].shape) & ~carved[box]
+    solid = inside(nodes).reshape(grown[box].shape) & ~carved[box]
     field = ndimage.gaussian_filter(np.where(solid, -1.0, 1.0), 0.7)
     field = np.pad(field, 1, constant_values=1.0)  # closed at the sub-grid's faces
-    vertices, triangles = _marching_cubes(field)
-    vertices = (vertices - 1.0 + low) * node - 1.0
+    cut_vertices, cut_triangles = _marching_cubes(field)
+    cut_vertices = (cut_vertices - 1.0 + low) * node - 1.0
     near = ndimage.binary_dilation(carved)
-    new = triangles[_at(near, vertices[triangles].mean(axis=1))]
-    old = target.triangles[~_at(near, target.vertices[target.triangles].mean(axis=1))]
-    vertices = np.vstack([target.vertices, vertices])
-    triangles = np.vstack([old, new + len(target.vertices)])
+    new = cut_triangles[_at(near, cut_vertices[cut_triangles].mean(axis=1))]
+    old = triangles[~_at(near, vertices[triangles].mean(axis=1))]
+    triangles = np.vstack([old, new + len(vertices)])
+    vertices = np.vstack([vertices, cut_vertices])
     used = np.zeros(len(vertices), bool)
     used[triangles] = True
     return _reindexed(vertices, triangles, used)

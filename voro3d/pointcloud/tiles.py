@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._cpufit import available_cpus
-from .tuning import ANALYSIS_POINTS, CHECK_POINTS, SEAM_STEPS, SEAM_WIDTH, TILE_MARGIN, TILE_POINTS, TILE_SAMPLES
+from .tuning import ANALYSIS_POINTS, SEAM_STEPS, SEAM_WIDTH, TILE_MARGIN, TILE_POINTS, TILE_SAMPLES
 
-__all__ = ["ENGINES", "Tile", "analysis_subset", "check_stride", "fit_in_tiles", "fit_tiles", "seam_tile", "split_tiles"]
+__all__ = ["ENGINES", "Tile", "analysis_subset", "fit_in_tiles", "fit_tiles", "seam_tile", "split_tiles"]
 
 ENGINES = ("local", "ray")
 
@@ -59,12 +59,6 @@ def analysis_subset(count: int, seed: int) -> np.ndarray | None:
     if count <= TILE_POINTS:
         return None
     return np.sort(np.random.default_rng(seed).choice(count, ANALYSIS_POINTS, replace=False))
-
-
-def check_stride(count: int) -> int:
-    """k such that every k-th of ``count`` points, at most ``CHECK_POINTS`` of them, stand for all
-    in a check of the surface against the points (a mean, a median, a share)."""
-    return max(1, -(-count // CHECK_POINTS))
 
 
 def fit_in_tiles(samples: np.ndarray, generators: np.ndarray | None, inside, grid: int, *, levels: int, frame,

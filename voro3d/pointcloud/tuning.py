@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS"]
 
@@ -150,6 +150,18 @@ MAX_BRIDGE_GAP = 0.25
 # A Poisson surface that runs further than this share of the diagonal out of the points' box is
 # refused (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`).
 MAX_POISSON_ESCAPE = 0.08
+# With plan hull "on", a target's solid more than this many nodes of its grid (a VoroMesh voxel at
+# FIELD_REFINEMENT 2) outside the points' convex hull is cut away (voro3d.pointcloud.hull). On and off,
+# 28 dev meshes, no normals, grid 64 (bench_plan.py --rules hull, plan_hull.md), mean CD / NC / F1:
+# 3-view range scans 49.9 / 0.894 / 0.648 -> 30.0 / 0.910 / 0.667 (lower CD on 25 of 28; homer 105 ->
+# 29, spot 36 -> 7.9: Poisson's swollen closure), 1 view 334 -> 352, NC +0.017, F1 +0.028 (lower CD on
+# 8 of 27: a thinner plate behind the seen side; 2 clouds in 2 pieces), 6 views never cut, a third
+# missing 325 -> 451, NC -0.019 (lower CD on 1 of 28: the closure's continuation past the cut plane goes).
+# So "auto" leaves it off: neither the winding level (third missing 0.31-0.48, 3 views 0.14-0.46), nor
+# the share of the solid the cut takes (0-0.27 both), nor this margin tells the two apart: 4 / 8 / 16
+# nodes give homer's 3-view scan 53 / 96 / 106 and spot's 9.2 / 23 / 36 back as they give the third
+# missing's continuation (spot 180 / 107 / 71 against 236 at 2 and 78 off).
+HULL_MARGIN_NODES = 2.0
 # Share of the points that must lie on the target surface (within two kernel widths).
 MIN_COVERAGE = 0.9
 # The target field is sampled this many times finer than the VoroMesh grid (at most MAX).

@@ -1,0 +1,103 @@
+"""The target surface a cloud's VoroMesh is fitted to: which one, built, and checked against the points.
+
+Screened Poisson for points that enclose a volume (:mod:`voro3d.pointcloud.poisson`), carved where it
+buries points that were seen (:mod:`voro3d.pointcloud.sightlines`); the IMLS field for an open scan,
+or one whose Poisson surface runs off (:mod:`voro3d.pointcloud.surface`); either cut back to the
+points' convex hull where the plan asks (:mod:`voro3d.pointcloud.hull`); a shell around the points where it lies closer
+to them (:func:`~voro3d.pointcloud.plan.sheet_if_closer`). A target that misses the points is refused
+(:func:`check_coverage`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .plan import sheet_if_closer, sheet_target
+from .poisson import poisson_surface
+from .hull import clip_to_hull
+from .preprocess import check_stride
+from .sightlines import carve_sightlines
+from .surface import target_surface
+from .tuning import FILTER_WIDTH_PER_NOISE, HOLE_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE, SHELL_DEPTH
+
+__all__ = ["build_target", "check_coverage"]
+
+
+def build_target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
+                 resolution: int, filtered: bool, dense: bool, hull: bool, helper):
+    """``(kind, target, distance)``: the target surface of a plan's ``target`` field.
+
+    Parameters
+    ----------
+    choice : {"auto", "poisson", "imls", "sheet"}
+        ``"auto"`` is the rule of :class:`~voro3d.pointcloud.plan.CloudPlan`.
+    points, given : (n, 3) float64
+        Fit frame: the points the field is built from (smoothed or not), and the points as they
+        came, for the shell.
+    normals, widths : (n, 3) float64, (n,) float64
+        Unit outward normals and kernel widths of ``points``.
+    stats : CloudStats
+    level : float
+        Winding level of the points; ``closed`` when over ``CLOSED_LEVEL``.
+    depth, resolution : int
+        Poisson octree depth and the IMLS field's (and carve grid's) nodes per side.
+    filtered, dense, hull : bool
+        Bilateral-filter the Poisson input; fit the IMLS target to the points themselves; cut a
+        Poisson or IMLS target back to the points' hull.
+    helper
+        Solves half of a split Poisson surface (:func:`~voro3d.pointcloud.poisson.poisson_surface`).
+
+    Returns
+    -------
+    kind : str
+        ``"poisson"``, ``"imls"`` or ``"sheet"``.
+    target
+        The surface (fit frame).
+    distance : (m,) float64 or None
+        Of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point of ``given`` to the
+        target, where the rule measured it.
+    """
+    if choice == "sheet":
+        return "sheet", sheet_target(given, stats.median_spacing, resolution), None
+    target = None
+    if choice == "poisson" or (choice == "auto" and closed):
+        target = poisson_surface(points, normals, depth, filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None,
+                                 helper=helper)
+        if choice == "auto" and target.escape(points) > MAX_POISSON_ESCAPE:
+            # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
+            target = None
+        else:
+            target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
+    kind = "poisson" if target is not None else "imls"
+    if target is None:
+        # Behind an open scan the solid is held within SHELL_DEPTH of the points (a shell under the
+        # seen side) unless they enclose it; a closed cloud's holes are closed at HOLE_LEVEL.
+        target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
+                                hole_level=max(level, HOLE_LEVEL) if closed else None,
+                                depth=None if closed else SHELL_DEPTH)
+    if hull:
+        target = clip_to_hull(target, points, resolution)
+    if choice == "auto" and not target.dense:
+        distance = target.distance(given[::check_stride(len(given))])
+        sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance)
+        return ("sheet", sheet, None) if sheet is not None else (kind, target, distance)
+    return kind, target, None
+
+
+def check_coverage(target, points, widths, *, distance=None) -> None:
+    """Refuse a target surface that misses the points: one that no volume behind them explains (a
+    one-sided scan of a thin or open structure).
+
+    Read from every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point, whose ``distance``
+    to the target may be given.
+
+    Raises
+    ------
+    ValueError
+        Fewer than ``MIN_COVERAGE`` of the points within two kernel widths and a field node of it.
+    """
+    every = slice(None, None, check_stride(len(points)))
+    distance = target.distance(points[every]) if distance is None else distance
+    covered = float(np.mean(distance <= 2.0 * widths[every] + 2.0 / (target.resolution - 1)))
+    if covered < MIN_COVERAGE:
+        raise ValueError(f"no closed surface explains these points: only {100 * covered:.0f}% of them lie on the "
+                         "reconstructed surface (an open, one-sided scan of a thin or flat object?)")
