@@ -63,3 +63,12 @@ def test_with_the_plan_s_hull_a_closure_does_not_swell_past_the_points(hull):
     assert info.plan.hull == ("on" if hull == "on" else "off")
     below = (np.asarray(mesh.vertices)[:, 2].min() - points[:, 2].min()) / info.voxel
     assert below > -1.5 if hull == "on" else below < -2.0
+
+
+def test_the_report_says_what_the_hull_would_cut(capsys):
+    # Printed only where the plan left the hull off and its cut would take something.
+    cap, ball = _cap(-0.3, 12_000), _cap(-1.0, 12_000)
+    for points, hull, said in ((cap, "auto", True), (cap, "on", False), (ball, "auto", False)):
+        reconstruct_points(points, grid=32, steps=5, plan={"target": "poisson", "hull": hull}, progress=True)
+        err = capsys.readouterr().err
+        assert ("past the points' convex hull (plan hull on cuts it back" in err) is said, err

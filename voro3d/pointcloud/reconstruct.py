@@ -29,11 +29,12 @@ from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_hull, settle_normals
 from .surface import imls, winding_level
 from .debris import drop_stray_cells
+from .hull import reach_past_hull
 from .targets import build_target, check_coverage
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE,
                      MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS,
-                     MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
+                     MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, HULL_MARGIN_NODES)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -373,9 +374,13 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     surface_vertices = target.project(target.vertices)
     plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind, hull=settle_hull(plan, kind))
     seconds["surface"] = time.perf_counter() - start
+    # What the plan's hull would cut, read for the report only.
+    past = reach_past_hull(target, framed) if progress and plan.hull == "off" and kind != "sheet" else 0.0
+    reach = (f"; its closure reaches {past / 2:.0%} of the diagonal past the points' convex hull (plan hull on cuts "
+             "it back: scans from a few viewpoints)" if past > HULL_MARGIN_NODES * 2.0 / (resolution - 1) else "")
     report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + why for why in getattr(target, 'carves', []))}"
                  f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
-                 f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}", seconds["surface"])
+                 f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}{reach}", seconds["surface"])
 
     start = time.perf_counter()
     n_tiles = 0
