@@ -61,24 +61,25 @@ def clip_to_hull(target, points, resolution: int):
     if found is None:  # flat or degenerate: refused with the reason by the cloud's own checks
         return target
     hull, scene = found
-    size, node = resolution, 2.0 / (resolution - 1)
-    margin = HULL_MARGIN_NODES * node
+    size, node, margin = resolution, 2.0 / (resolution - 1), _margin(resolution)
     vertices = target.project(target.vertices)
-    if not np.any(_beyond(vertices, scene, hull.equations, margin)):
+    outside = _outside(scene, vertices)
+    if not np.any(_height(vertices[outside], hull.equations) > margin):
         # The solid's boundary is within the margin of the hull, so is the solid.
         return target
     # The solid outside the hull is bounded by the triangles that leave it and the hull's faces
     # between them: within the box of those triangles.
-    outside = _outside(scene, vertices)
     leaving = vertices[target.triangles[np.any(outside[target.triangles], axis=1)]]
     low = np.clip(np.floor((leaving.min(axis=(0, 1)) + 1.0) / node).astype(np.int64) - 1, 0, size - 1)
     high = np.clip(np.ceil((leaving.max(axis=(0, 1)) + 1.0) / node).astype(np.int64) + 2, 1, size)
     index = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(low, high)], indexing="ij"), axis=-1).reshape(-1, 3)
-    index = index[_outside(scene, index * node - 1.0)]
-    index = index[target.inside(index * node - 1.0)]
-    index = index[_height(index * node - 1.0, hull.equations) > margin]
-    if not len(index):
+    nodes = index * node - 1.0
+    keep = _outside(scene, nodes)
+    keep[keep] = target.inside(nodes[keep])
+    keep[keep] = _height(nodes[keep], hull.equations) > margin
+    if not keep.any():
         return target
+    index = index[keep]
     carved = np.zeros((size,) * 3, bool)
     carved[tuple(index.T)] = True
     # Triangles past the cut go too, with slivers of solid thinner than a node that no node marked.
@@ -87,17 +88,22 @@ def clip_to_hull(target, points, resolution: int):
                           scene, hull.equations, margin)
 
 
-def reach_past_hull(target, points) -> float:
+def reach_past_hull(target, points, resolution: int) -> float:
     """How far ``target``'s vertices (every k-th, at most ``REACH_VERTICES``) reach past the convex hull
-    of ``points``, fit frame; 0 within it, and for a flat or degenerate cloud. What :func:`clip_to_hull`
-    would cut, for the report of a run that did not ask for it."""
+    of ``points``, fit frame, where :func:`clip_to_hull` at ``resolution`` would cut (further than its
+    margin); else 0, and for a flat or degenerate cloud. For the report of a run that did not ask for the cut."""
     found = _hull(points)
     if found is None:
         return 0.0
     hull, scene = found
     vertices = target.vertices[::stride(len(target.vertices), REACH_VERTICES)]
-    outside = _outside(scene, vertices)
-    return float(_height(vertices[outside], hull.equations).max(initial=0.0))
+    reach = float(_height(vertices[_outside(scene, vertices)], hull.equations).max(initial=0.0))
+    return reach if reach > _margin(resolution) else 0.0
+
+
+def _margin(resolution: int) -> float:
+    """``HULL_MARGIN_NODES`` nodes of a grid of ``resolution`` nodes a side over ``[-1, 1]^3``."""
+    return HULL_MARGIN_NODES * 2.0 / (resolution - 1)
 
 
 def _hull(points):

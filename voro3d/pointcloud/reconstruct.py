@@ -34,7 +34,7 @@ from .targets import build_target, check_coverage
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
 from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE,
                      MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS,
-                     MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION, HULL_MARGIN_NODES)
+                     MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -375,9 +375,9 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind, hull=settle_hull(plan, kind))
     seconds["surface"] = time.perf_counter() - start
     # What the plan's hull would cut, read for the report only.
-    past = reach_past_hull(target, framed) if progress and plan.hull == "off" and kind != "sheet" else 0.0
+    past = reach_past_hull(target, framed, resolution) if progress and plan.hull == "off" and kind != "sheet" else 0.0
     reach = (f"; its closure reaches {past / 2:.0%} of the diagonal past the points' convex hull (plan hull on cuts "
-             "it back: scans from a few viewpoints)" if past > HULL_MARGIN_NODES * 2.0 / (resolution - 1) else "")
+             "it back: scans from a few viewpoints)" if past else "")
     report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + why for why in getattr(target, 'carves', []))}"
                  f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
                  f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}{reach}", seconds["surface"])
