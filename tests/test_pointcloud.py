@@ -542,6 +542,30 @@ def test_node_distance_matches_a_query_of_every_node():
     np.testing.assert_array_equal(nearest.ravel(), index)
 
 
+def test_node_distance_with_a_reach_per_point_is_exact_within_each_nearest_points_reach():
+    # Most points reach 0.05, a few 0.3: every node within its nearest point's reach gets the
+    # exact distance and index (those beyond may be inf), in two queries instead of one at 0.3.
+    from scipy.spatial import cKDTree
+
+    from voro3d.pointcloud.fields import node_distance
+    from voro3d.sampling import grid_nodes
+
+    rng = np.random.default_rng(4)
+    points = rng.uniform(-0.6, 0.9, (1000, 3))
+    reach = np.where(rng.random(1000) < 0.005, 0.3, 0.05)
+    assert 0 < (reach > 0.05).sum() < 10
+    tree = cKDTree(points)
+    distance, nearest = (a.ravel() for a in node_distance(tree, 33, reach))
+    expected, index = tree.query(grid_nodes(33))
+    within = expected < reach[index]
+    assert within.sum() > 0 and (within & (expected > 0.05)).sum() > 0  # the wide points' reach is used
+    np.testing.assert_array_equal(distance[within], expected[within])
+    np.testing.assert_array_equal(nearest[within], index[within])
+    found = np.isfinite(distance)
+    np.testing.assert_array_equal(distance[found], expected[found])  # never a wrong distance
+    assert found.sum() < np.isfinite(node_distance(tree, 33, 0.3)[0]).sum()  # fewer nodes queried
+
+
 def _two_balls(gap: float, small: int = 500):
     """A 41^3 field of two balls of radius 0.3 ``gap`` apart along x, and points on them (``small``
     on the second)."""

@@ -281,9 +281,9 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     step = grid_voxel(resolution)
     nodes = grid_nodes(resolution)
     tree = cKDTree(points)
-    # One query for the band (nodes within IMLS_BAND kernel widths of their nearest point) and
-    # the depth limit.
-    reach = max(IMLS_BAND * float(widths.max()), 0.0 if depth is None else limit_reach(resolution, depth)) + step
+    # The distances for the band (nodes within IMLS_BAND kernel widths of their nearest point) and
+    # the depth limit, each point reaching as far as either needs.
+    reach = np.maximum(IMLS_BAND * widths, 0.0 if depth is None else limit_reach(resolution, depth)) + step
     distance, nearest = (a.ravel() for a in node_distance(tree, resolution, reach))
     near = np.isfinite(distance)
     near[near] = distance[near] <= IMLS_BAND * widths[nearest[near]]
