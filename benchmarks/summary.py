@@ -161,7 +161,9 @@ follows the points closer than Poisson's; from 1 or 3 views the unseen side is c
 winding-number field, at most `SHELL_DEPTH` (6% of the diagonal) behind the seen side where the
 points do not enclose it: a shell, not a block out to the box, while Poisson runs flaps out of it.
 Where they do (3 views), the unseen parts are closed at a winding number of at least `HOLE_LEVEL`
-(0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5).""",
+(0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5). Run on a
+quiet machine: VoroMesh takes 2.15x Open3D's pipeline summed (3.7x on one view, where Open3D's
+orientation and Poisson take about a second), 65% of it the target surface.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12 (two runs of the same
 code: the first 8 before the bubble rule of `pointcloud.debris`, which changes none of their

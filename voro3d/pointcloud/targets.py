@@ -64,6 +64,10 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
                                  helper=helper)
         if choice == "auto" and target.escape(points) > MAX_POISSON_ESCAPE:
             # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
+            # (Building it beside the solve, in a second process, lost: on this 2-CPU machine a busy
+            # second process halves the first's speed, Open3D's solve of 5k points 0.9 -> 1.9 s beside
+            # a pure-Python loop. Refused 3-view scans gained 1.5 s, bunny 8.8 -> 7.3 s; kept ones lost
+            # 1 s, cow 5k 2.6 -> 3.4 s; 2026-12-05.)
             target = None
         else:
             target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
