@@ -41,6 +41,36 @@ def wall_thickness(mesh, points, normals) -> np.ndarray:
     return scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
 
 
+NEIGHBOURHOODS = (6, 8, 12, 16, 24, 32)
+# The mixed rule of the last table: the 8-neighbour plane where the 16-neighbour one is this many times
+# less flat (it straddles the two sides of a wall).
+STRADDLE_RATIO = 3.0
+
+
+def plane_fit_errors(points, normals) -> dict:
+    """Median angle (degrees) of plane fits to the true ``normals`` and share over 30 degrees, per
+    neighbourhood size (``NEIGHBOURHOODS``), and for the mixed rule (``"mixed"``): the 8-neighbour
+    plane where the 16-neighbour plane's flatness (smallest covariance eigenvalue over their sum)
+    is ``STRADDLE_RATIO`` times worse, else the 16-neighbour one."""
+    from scipy.spatial import cKDTree
+
+    _, neighbours = cKDTree(points).query(points, k=max(NEIGHBOURHOODS) + 1)
+    fits, flatness = {}, {}
+    for k in NEIGHBOURHOODS:
+        local = points[neighbours[:, :k + 1]]
+        local = local - local.mean(axis=1, keepdims=True)
+        values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+        fits[k], flatness[k] = vectors[:, :, 0], values[:, 0] / np.maximum(values.sum(axis=1), 1e-300)
+    straddles = flatness[16] > STRADDLE_RATIO * np.maximum(flatness[8], 1e-300)
+    fits["mixed"] = np.where(straddles[:, None], fits[8], fits[16])
+    errors = {}
+    for key, fit in fits.items():
+        cosine = np.clip(np.abs(np.einsum("ij,ij->i", fit, normals)), 0.0, 1.0)
+        errors[str(key)] = dict(median_degrees=float(np.degrees(np.arccos(np.median(cosine)))),
+                                over_30=float(np.mean(cosine < np.cos(np.radians(30.0)))))
+    return errors
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--shapes", nargs="+", default=list(SHAPES))
@@ -68,7 +98,7 @@ def main():
             axis = np.degrees(np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", np.asarray(plane_fits.normals), normals)), 0, 1)))
             signs = float(np.mean(np.einsum("ij,ij->i", estimate_normals(framed), normals) < 0))
             row = dict(shape=name, points=count, thickness_spacings=float(np.median(thickness[np.isfinite(thickness)]) / nearest),
-                       axis_degrees=float(np.median(axis)), wrong_signs=signs)
+                       axis_degrees=float(np.median(axis)), wrong_signs=signs, plane_fits=plane_fit_errors(points, normals))
             meshes = {}
             for label, given in (("none", None), ("true", normals)):
                 start = time.perf_counter()
@@ -106,6 +136,15 @@ def main():
         lines.append(f"| {r['shape']} | {r['points']:,} | {r['thickness_spacings']:.1f} | {r['axis_degrees']:.1f} | "
                      f"{r['wrong_signs']:.3f} | {cells[0]} | {r['none']['target']}, denoise {r['none']['denoise']} | "
                      f"{cells[1]} | {r['true']['target']}, denoise {r['true']['denoise']} | {cells[2]} |")
+    keys = [str(k) for k in NEIGHBOURHOODS] + ["mixed"]
+    lines += ["", "Plane fits by neighbourhood size, median angle to the true normals in degrees / share over 30 "
+              "degrees (*mixed*: the 8-neighbour plane where the 16-neighbour one is "
+              f"{STRADDLE_RATIO:g} times less flat, else the 16-neighbour one; not what `estimate_normals` uses):", "",
+              "| shape | points | " + " | ".join(f"{k} neighbours" if k != "mixed" else k for k in keys) + " |",
+              "|---|---|" + "---|" * len(keys)]
+    for r in rows:
+        lines.append(f"| {r['shape']} | {r['points']:,} | " + " | ".join(
+            f"{r['plane_fits'][k]['median_degrees']:.1f} / {r['plane_fits'][k]['over_30']:.2f}" for k in keys) + " |")
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {args.out.with_suffix('.md')}")
 

@@ -196,7 +196,11 @@ inconsistent (`voro3d/pointcloud/normals.py`).""",
 `benchmarks/bench_thin_walls.py`: a cup and a lid sampled on both sides of walls a few spacings
 thick. Without normals, a failure measured, not fixed: at 5k-20k points the 16-neighbour plane fits
 span both sides (axes 14-33 degrees off), our orientation leaves 38-47% of the signs wrong, and the
-output is far off (CD 10-230 against 1-4 for Poisson on the true normals). With the true normals
+output is far off (CD 10-167 against 1-4 for Poisson on the true normals). The second table is the
+lead: at 20k points 6-8 neighbours stay on one side (cup 1.0-1.2 degrees), and taking the 8-neighbour
+plane where the 16-neighbour one is 3 times less flat gets the cup's signs 98% right; its output with
+those normals, smoothing off and Poisson forced is CD 1.64 (30.4 today), but the noise estimate still
+reads the two sides as noise and the winding level calls the cup open (2026-12-05). With the true normals
 given, the noise and the points' areas count only the neighbours on each point's own side, and every
 count matches Poisson on those normals (CD 4.24 / 1.43 / 1.32 and 4.18 / 1.05 / 0.86 against 4.20 /
 1.43 / 1.31 and 3.83 / 1.04 / 0.86; before, the far side read as noise and the plan left Poisson for
