@@ -5,7 +5,7 @@ import numpy as np
 
 from ._validate import as_points, positive_int
 from .geometry import grid_voxel
-from .sampling import grid_nodes
+from .sampling import grid_nodes, node_coordinates
 
 __all__ = ["AdaptiveBand", "grid_nodes", "initial_generators"]
 
@@ -49,19 +49,12 @@ def initial_generators(samples, grid: int) -> np.ndarray:
     voxel = np.unique((voxel[:, 0] * grid + voxel[:, 1]) * grid + voxel[:, 2])
     # A voxel's lowest corner has the voxel's own index; the others add C-order node strides.
     strides = _CORNERS @ np.array([grid * grid, grid, 1], dtype=np.int64)
-    return _node_coordinates(np.unique((voxel[:, None] + strides).reshape(-1)), grid)
+    return node_coordinates(np.unique((voxel[:, None] + strides).reshape(-1)), grid)
 
 
 def _voxel_ijk(points: np.ndarray, grid: int) -> np.ndarray:
     """(m, 3) int64: the voxel (i, j, k) of each point, points outside clipped into the boundary voxels."""
     return np.clip(np.floor((points + 1.0) / grid_voxel(grid)).astype(np.int64), 0, grid - 2)
-
-
-def _node_coordinates(nodes: np.ndarray, grid: int) -> np.ndarray:
-    """(n, 3) float64 positions of C-order node indices: the coordinates of grid_nodes, bit for bit,
-    so rows equal ``grid_nodes(grid)[nodes]``."""
-    ijk = np.stack([nodes // (grid * grid), (nodes // grid) % grid, nodes % grid], axis=1)
-    return np.linspace(-1.0, 1.0, grid)[ijk]
 
 
 class AdaptiveBand:
@@ -159,7 +152,7 @@ class AdaptiveBand:
             ijk = np.stack([leaves // (size * size), (leaves // size) % size, leaves % size], axis=1)
             corners = np.minimum((ijk[:, None, :] + _CORNERS) << level, self.grid - 1)
             nodes.append((corners @ strides).reshape(-1))
-        return _node_coordinates(np.unique(np.concatenate(nodes)), self.grid)
+        return node_coordinates(np.unique(np.concatenate(nodes)), self.grid)
 
     def density(self, points) -> np.ndarray:
         """(m,) float64: samples per area at each point as a share of level 0's, ``4^-level``: the

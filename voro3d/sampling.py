@@ -7,7 +7,7 @@ from ._validate import positive_int
 from .geometry import face_area_vectors
 from .io import mesh_arrays
 
-__all__ = ["sample_surface", "grid_nodes"]
+__all__ = ["sample_surface", "grid_nodes", "node_coordinates"]
 
 
 def sample_surface(mesh, n_samples: int, *, seed: int = 0, density=None) -> tuple[np.ndarray, np.ndarray]:
@@ -76,3 +76,22 @@ def grid_nodes(grid: int) -> np.ndarray:
     grid = positive_int(grid, "grid", minimum=2)
     axis = np.linspace(-1.0, 1.0, grid)
     return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def node_coordinates(nodes: np.ndarray, grid: int) -> np.ndarray:
+    """Positions of some nodes of the :func:`grid_nodes` lattice, without building the whole of it.
+
+    Parameters
+    ----------
+    nodes : (n,) int
+        C-order node indices.
+    grid : int
+        Nodes per axis.
+
+    Returns
+    -------
+    (n, 3) float64
+        ``grid_nodes(grid)[nodes]``, bit for bit.
+    """
+    ijk = np.stack([nodes // (grid * grid), (nodes // grid) % grid, nodes % grid], axis=1)
+    return np.linspace(-1.0, 1.0, grid)[ijk]

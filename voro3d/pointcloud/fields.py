@@ -97,6 +97,7 @@ def _query_near(tree, resolution: int, chosen, reach: float, distance, nearest) 
     from scipy import ndimage
 
     from ..geometry import grid_voxel
+    from ..sampling import node_coordinates
 
     step = grid_voxel(resolution)
     voxel = np.clip(np.rint((tree.data[chosen] + 1.0) / step).astype(np.int64), 0, resolution - 1)
@@ -107,9 +108,8 @@ def _query_near(tree, resolution: int, chosen, reach: float, distance, nearest) 
     candidates = ndimage.maximum_filter(occupied, size=2 * radius + 1, mode="constant").ravel()
     candidates = np.flatnonzero(candidates & np.isinf(distance))
     if candidates.size:
-        # The nodes' coordinates as grid_nodes gives them, without the whole grid's.
-        nodes = np.linspace(-1.0, 1.0, resolution)[np.stack(np.unravel_index(candidates, (resolution,) * 3), axis=1)]
-        distance[candidates], nearest[candidates] = tree.query(nodes, distance_upper_bound=reach, workers=-1)
+        distance[candidates], nearest[candidates] = tree.query(node_coordinates(candidates, resolution),
+                                                               distance_upper_bound=reach, workers=-1)
 
 
 def limit_reach(resolution: int, depth: float) -> float:
