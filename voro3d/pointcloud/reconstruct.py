@@ -326,9 +326,11 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
 
     start = time.perf_counter()
     if normals is None:
-        normals, normal_source = estimate_normals(framed), "estimated"
+        normals, normal_source = estimate_normals(framed, walls=stats.walls), "estimated"
     seconds["normals"] += time.perf_counter() - start
-    report_phase(progress, "normals", normal_source, seconds["normals"])
+    walls = "" if stats.walls is None or not stats.walls.any() else \
+        f" ({stats.walls.mean():.0%} of the points span both sides of a thin wall: fitted on their nearer side)"
+    report_phase(progress, "normals", normal_source + walls, seconds["normals"])
 
     start = time.perf_counter()
     # Clean points are followed closely; noisy ones, or a cloud that held strays, are averaged.

@@ -6,7 +6,7 @@ terms (diagonal 2) unless said otherwise. A number stays here only with a measur
 
 __all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
-           "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS"]
+           "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
 # Kernel width of a point: this many local spacings, or this many noise standard deviations.
 # Sparse clean clouds (no noise, under MAX_TRUSTED_OUTLIERS of strays) get the narrower width:
@@ -332,3 +332,17 @@ SPLIT_POINTS = 60_000
 # within 0.0012): a tiny change of the target moves the fit by as much, and the widest margin is the
 # safest where a hole crosses the cut.
 SPLIT_MARGIN_CELLS = 16
+# Thin walls sampled on both sides (preprocess.two_sheets, wall_points): where a plane fit spans both
+# sides of a wall (at 20k points the cup abc_00000009's 16-neighbour fits are 27.8 degrees off the
+# true normals, 1.0-1.2 with 6-8 neighbours; bench_thin_walls), the plane of the 8 nearest gives the
+# normal's axis and the noise. The far sheet needs TWO_SHEET_POINTS points and must stand
+# TWO_SHEET_CLEARANCE times the near part's scatter off its plane (noisy clouds read two sheets at
+# 6-7% of their points instead of 16-20% without it). A point counts only where WALL_VOTE of its 16
+# nearest read two sheets too (a wall runs on; noise is speckle). Share of the points, 24-neighbour
+# test alone -> with the vote, the 12 benchmark meshes without normals: 0.25-1% noise 1.2-13.3% ->
+# 0-0.5%; clean 5k 12.8-29.7% -> 3.3-15.9%; clean 20k 5.2-24.5% -> 1.8-6.9%; range scans 1.4-23.4% ->
+# 0.5-8.7%; the cup at 20k 71.3% -> 68.2%, the lid abc_00000007 34.3% -> 19.5%, a tube 2 spacings
+# thick at 30k points (tests) 87.5% -> 85.6%.
+TWO_SHEET_POINTS = 2
+TWO_SHEET_CLEARANCE = 4.0
+WALL_VOTE = 0.5
