@@ -36,7 +36,9 @@ the points define (``voro3d/pointcloud/``):
    0.16-0.36, consistent normals under 0.03) are re-oriented by our orienter (``orient_normals``);
    normals of a closed cloud that all point inward (winding level under -0.25) are flipped.
    ``PointCloudInfo.normals`` says which (``"given"``, ``"given, re-oriented"``, ``", flipped"``).
-   Without normals: Open3D plane fits over 16 neighbours with signs made consistent along a
+   Without normals: Open3D plane fits over 16 neighbours (over the 8 nearest where a point's
+   neighbourhood spans both sides of a wall a few spacings thick, and half its neighbours' do too:
+   ``preprocess.wall_points``; their noise is read there as well) with signs made consistent along a
    minimum spanning tree, then smooth patches, and within them the points no probe calls right,
    vote on which side is open space (1-2 s for 10⁵ points; see ``estimate_normals``). On 30k points
    of 6 dev meshes, ``estimate_normals()`` normals give 1.00-1.03x the CD of no normals and negated

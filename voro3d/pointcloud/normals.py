@@ -61,7 +61,7 @@ def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
 
 def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | None = None,
-                     walls: np.ndarray | None = None) -> np.ndarray:
+                     walls: np.ndarray | None = None, neighbours=None) -> np.ndarray:
     """Unit normals from local PCA (Open3D's plane fits over ``k`` neighbours), oriented
     consistently and outward by :func:`orient_normals`.
 
@@ -78,6 +78,9 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
         (:func:`~voro3d.pointcloud.preprocess.wall_points`, found here when not given): their
         axis is the plane of their ``SPACING_NEIGHBOURS`` nearest (bench_thin_walls: the cup
         abc_00000009 at 20k points, 27.8 -> 1.2 degrees off the true normals).
+    neighbours : (distance, neighbour), optional
+        A :func:`~voro3d.queries.neighbour_table` of ``points`` to reuse, when it has the columns
+        needed (``k + 1``, and ``NOISE_NEIGHBOURS + 1`` without ``walls``); queried otherwise.
 
     Returns
     -------
@@ -97,7 +100,10 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     k = min(k, n - 1)
     # The wall test reads wider neighbourhoods than the plane fits: one query serves both.
     columns = k + 1 if walls is not None else min(max(k, NOISE_NEIGHBOURS), n - 1) + 1
-    distances, neighbours = neighbour_table(cKDTree(points), columns)
+    if neighbours is not None and neighbours[0].shape[0] == n and neighbours[0].shape[1] >= columns:
+        distances, neighbours = (table[:, :columns] for table in neighbours)
+    else:
+        distances, neighbours = neighbour_table(cKDTree(points), columns)
     extent = np.linalg.norm(points.max(axis=0) - points.min(axis=0))
     stacked = int((distances[:, k] <= 1e-9 * extent).sum())
     if stacked > 0.01 * n:

@@ -302,7 +302,8 @@ def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, s
     -------
     (n,) bool
     """
-    distance, neighbour = outlier_neighbours(points, tree=tree) if neighbours is None else neighbours
+    distance, neighbour = (table[:, :STRAY_NEIGHBOURS + 1] for table in
+                           (outlier_neighbours(points, tree=tree) if neighbours is None else neighbours))
     spacing = distance[:, SPACING_NEIGHBOURS]
     suspect = spacing > sparse_factor * np.median(spacing)
     mean = distance[:, 1:].mean(axis=1)
@@ -330,14 +331,15 @@ def _on_sheet(points, neighbourhood, block: int = 2**16) -> np.ndarray:
 
 def outlier_neighbours(points: np.ndarray, *, tree=None) -> tuple[np.ndarray, np.ndarray]:
     """The kNN table :func:`outlier_mask` reads (``STRAY_NEIGHBOURS`` and the point itself,
-    :func:`~voro3d.queries.neighbour_table`); the spacing and point areas of the same points can
-    read theirs from it too."""
+    :func:`~voro3d.queries.neighbour_table`), as wide as :func:`cloud_stats`' wall test needs
+    (``NOISE_NEIGHBOURS``): the spacing, walls and point areas of the same points read theirs from
+    it too (one query instead of two: 100k bunny points, the clean phase 1.6-1.9 s -> 1.3-1.4 s)."""
     from scipy.spatial import cKDTree
 
     from ..queries import neighbour_table
 
     tree = cKDTree(points) if tree is None else tree
-    return neighbour_table(tree, min(STRAY_NEIGHBOURS + 1, points.shape[0]))
+    return neighbour_table(tree, min(max(STRAY_NEIGHBOURS, NOISE_NEIGHBOURS) + 1, points.shape[0]))
 
 
 def _small_clusters(points, distance, neighbour, candidate, *, share: float = 0.01, block: int = 2**14):

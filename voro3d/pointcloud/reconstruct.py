@@ -326,7 +326,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
 
     start = time.perf_counter()
     if normals is None:
-        normals, normal_source = estimate_normals(framed, walls=stats.walls), "estimated"
+        normals, normal_source = estimate_normals(framed, walls=stats.walls, neighbours=neighbours), "estimated"
     seconds["normals"] += time.perf_counter() - start
     walls = "" if stats.walls is None or not stats.walls.any() else \
         f" ({stats.walls.mean():.0%} of the points span both sides of a thin wall: fitted on their nearer side)"
