@@ -162,8 +162,8 @@ winding-number field, at most `SHELL_DEPTH` (6% of the diagonal) behind the seen
 points do not enclose it: a shell, not a block out to the box, while Poisson runs flaps out of it.
 Where they do (3 views), the unseen parts are closed at a winding number of at least `HOLE_LEVEL`
 (0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5). Run on a
-quiet machine: VoroMesh takes 2.15x Open3D's pipeline summed (3.7x on one view, where Open3D's
-orientation and Poisson take about a second), 65% of it the target surface.""",
+quiet machine: VoroMesh takes 2.00x Open3D's pipeline summed (3.3x on one view, where Open3D's
+orientation and Poisson take about a second), 62% of it the target surface.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12 (two runs of the same
 code: the first 8 before the bubble rule of `pointcloud.debris`, which changes none of their
@@ -194,17 +194,16 @@ negated, true) against the same clouds without; given normals are checked and re
 inconsistent (`voro3d/pointcloud/normals.py`).""",
     "thin_walls": """\
 `benchmarks/bench_thin_walls.py`: a cup and a lid sampled on both sides of walls a few spacings
-thick. Without normals, a failure measured, not fixed: at 5k-20k points the 16-neighbour plane fits
-span both sides (axes 14-33 degrees off), our orientation leaves 38-47% of the signs wrong, and the
-output is far off (CD 10-167 against 1-4 for Poisson on the true normals). The second table is the
-lead: at 20k points 6-8 neighbours stay on one side (cup 1.0-1.2 degrees), and taking the 8-neighbour
-plane where the 16-neighbour one is 3 times less flat gets the cup's signs 98% right; its output with
-those normals, smoothing off and Poisson forced is CD 1.64 (30.4 today), but the noise estimate still
-reads the two sides as noise and the winding level calls the cup open (2026-12-05). With the true normals
-given, the noise and the points' areas count only the neighbours on each point's own side, and every
-count matches Poisson on those normals (CD 4.24 / 1.43 / 1.32 and 4.18 / 1.05 / 0.86 against 4.20 /
-1.43 / 1.31 and 3.83 / 1.04 / 0.86; before, the far side read as noise and the plan left Poisson for
-a smoothed IMLS target, CD 8-51).""",
+thick. Without normals, 16-neighbour plane fits span both sides (axes 14-33 degrees off at 5k-20k
+points). Where a point's neighbourhood reads two parallel sheets and half its neighbours' do too
+(`preprocess.wall_points`), the plane of its 8 nearest gives the axis and the noise: the cup at
+20k points goes from CD 30.4 (39% of the signs wrong) to 1.70 (2%), against 1.43 with the true
+normals (2026-12-05). Still open: the lid at 20k, whose 8-neighbour fits straddle its wall too
+(26 degrees; 6 neighbours 1.8), stays a shell (CD 10.5), and at 5k points (walls 1.5-1.8 spacings)
+no neighbourhood separates the sides (CD 31-165). With the true normals given, the noise and the
+points' areas count only the neighbours on each point's own side, and every count matches Poisson
+on those normals (CD 4.25 / 1.43 / 1.33 and 4.29 / 1.05 / 0.86 against 4.20 / 1.43 / 1.32 and
+3.83 / 1.04 / 0.86).""",
     "fit_speed": """\
 `benchmarks/bench_fit_speed.py` times the whole fit against another checkout, interleaved: on a
 quiet 2-core CPU 0.79 / 3.57 s per dev mesh at 32³ / 64³ on average, 18.7 s for the bunny at 128³
