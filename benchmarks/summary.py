@@ -165,18 +165,17 @@ Where they do (3 views), the unseen parts are closed at a winding number of at l
 quiet machine: VoroMesh takes 2.00x Open3D's pipeline summed (3.3x on one view, where Open3D's
 orientation and Poisson take about a second), 62% of it the target surface.""",
     "pointcloud_range_more": """\
-The range conditions of `pointcloud_range` on 16 dev meshes outside its 12 (two runs of the same
-code: the first 8 before the bubble rule of `pointcloud.debris`, which changes none of their
-outputs, all one piece), both methods and `alpha_wrap_3`: the range-scan rules on meshes they were
-not set on. Against Open3D's pipeline VoroMesh has the lower CD and the higher NC and F1 in every
-condition (6 views: F1 0.818 against 0.817). Against alpha wrap: 1 view CD 471 against 721, 3 views
-53.9 against 51.2, 6 views 24.7 against 6.5. The 8 organic meshes of the second run win on every
-condition's mean (3 views 30.0 against 53.0, 6 views 1.0 against 2.0), though 4 of their 24 clouds
-lose (bumpy-cube from 1 view as a sheet, 1,470 against 1,027; camel_b, fertility and thingi32_44234
-from 3 views, on Poisson). The large losses are the thin-walled CAD parts of the first run:
-abc_00000009, a cup, CD 201 from 6 views (Poisson's target 55, the 64^3 VoroMesh loses the wall);
-abc_00000006 and its twin cad_nmc_sample0, 84-86 (Open3D 72-75); abc_00000007, a lid, 114 against
-5.7 from 3 views and an offset sheet from 6 (F1 0.04).""",
+The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
+`alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
+2026-12-05 with the thin-wall test of `preprocess.wall_points`). Against Open3D's pipeline VoroMesh
+has the lower CD and the higher F1 in every condition, NC +0.075 / +0.056 / -0.004 from 1 / 3 / 6
+views. Against alpha wrap: 1 view CD 472 against 721, 3 views 66.4 against 51.2, 6 views 7.8
+against 6.5. The thin-wall test helped camel_b (3 views 21.7 -> 12.3), arm (72.4 -> 62.6) and the
+cup abc_00000009 (6 views 4.8 -> 3.3) and cost the lid abc_00000007, which carries both means past
+alpha wrap's: 3 views 115 -> 357, 6 views 8.2 -> 62.2 (an IMLS solid, F1 0.51, where the shell was
+an offset sheet, F1 0.04; alpha wrap 5.7 and 2.5). Without the lid, 6 views average 4.2 against
+alpha wrap's 6.8. The other thin-walled CAD parts (abc_00000006, cad_nmc_sample0) stay near Open3D
+from 3 views (70-72 against 70-71) and under it from 6 (22-23 against 71-74).""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside
