@@ -329,7 +329,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
         normals, normal_source = estimate_normals(framed, walls=stats.walls, neighbours=neighbours), "estimated"
     seconds["normals"] += time.perf_counter() - start
     walls = "" if stats.walls is None or not stats.walls.any() else \
-        f" ({stats.walls.mean():.0%} of the points span both sides of a thin wall: fitted on their nearer side)"
+        f" ({stats.walls.sum():,} points, {stats.walls.mean():.1%}, span both sides of a thin wall: fitted on their nearer side)"
     report_phase(progress, "normals", normal_source + walls, seconds["normals"])
 
     start = time.perf_counter()
