@@ -126,6 +126,7 @@ def test_given_normals_keep_the_far_side_of_a_thin_wall_out_of_the_noise():
     one = cloud_stats(plate, normals=normals)
     assert both.noise > 0.3 * both.median_spacing  # the far sheet, closer than the 8th neighbour, reads as noise
     assert one.noise < 1e-6 and one.fine_noise < 1e-6
+    assert one.walls is None and both.walls.shape == (6000,)  # given normals tell the sides apart themselves
     assert np.array_equal(one.spacing, both.spacing)
 
 
