@@ -114,11 +114,10 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     normals = np.asarray(cloud.normals).copy()
     if not np.isfinite(normals).all() or (np.linalg.norm(normals, axis=1) < 0.5).mean() > 0.01:
         raise ValueError("normals could not be estimated (degenerate neighbourhoods)")
-    walls = np.flatnonzero(wall_points(points, neighbours) if walls is None else walls)
+    across = np.flatnonzero(wall_points(points, neighbours) if walls is None else walls)
     distances, neighbours = distances[:, :k + 1], neighbours[:, :k + 1]
-    if walls.size:
-        near = neighbours[walls, :min(SPACING_NEIGHBOURS, k) + 1]
-        normals[walls] = plane_normals(points[near])
+    if across.size:
+        normals[across] = plane_normals(points[neighbours[across, :min(SPACING_NEIGHBOURS, k) + 1]])
     graph_k = k if graph_k is None else min(graph_k, k)
     return orient_normals(points, normals, neighbours=(distances[:, :graph_k + 1], neighbours[:, :graph_k + 1]))
 

@@ -149,10 +149,11 @@ def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTIC
     ``sample`` random points (None: all; ``STATISTICS_SAMPLE``, where it is measured).
     ``neighbours``: a :func:`~voro3d.queries.neighbour_table` of ``points`` to reuse
     (:func:`outlier_mask`'s), used with ``NOISE_NEIGHBOURS + 1`` columns or more without
-    ``normals``, ``SPACING_NEIGHBOURS + 1`` with them. ``normals``: (n, 3) consistently oriented normals, when known; a neighbour whose normal points against the
-    point's lies on the other side of a thin wall, and is left out of the noise. Without them the
-    two sides of a wall a few spacings thick would read as noise (``bench_thin_walls``): the
-    points of :func:`wall_points` read it over their nearest ``SPACING_NEIGHBOURS`` instead.
+    ``normals``, ``SPACING_NEIGHBOURS + 1`` with them. ``normals``: (n, 3) consistently oriented
+    normals, when known; a neighbour whose normal points against the point's lies on the other
+    side of a thin wall, and is left out of the noise. Without them the two sides of a wall a few
+    spacings thick would read as noise (``bench_thin_walls``): the points of :func:`wall_points`
+    read it over their nearest ``SPACING_NEIGHBOURS`` instead.
     """
     from scipy.spatial import cKDTree
 
