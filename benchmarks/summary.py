@@ -167,15 +167,17 @@ orientation and Poisson take about a second), 62% of it the target surface.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
-2026-12-05 with the thin-wall test of `preprocess.wall_points`). Against Open3D's pipeline VoroMesh
-has the lower CD and the higher F1 in every condition, NC +0.075 / +0.056 / -0.004 from 1 / 3 / 6
-views. Against alpha wrap: 1 view CD 472 against 721, 3 views 66.4 against 51.2, 6 views 7.8
-against 6.5. The thin-wall test helped camel_b (3 views 21.7 -> 12.3), arm (72.4 -> 62.6) and the
-cup abc_00000009 (6 views 4.8 -> 3.3) and cost the lid abc_00000007, which carries both means past
-alpha wrap's: 3 views 115 -> 357, 6 views 8.2 -> 62.2 (an IMLS solid, F1 0.51, where the shell was
-an offset sheet, F1 0.04; alpha wrap 5.7 and 2.5). Without the lid, 6 views average 4.2 against
-alpha wrap's 6.8. The other thin-walled CAD parts (abc_00000006, cad_nmc_sample0) stay near Open3D
-from 3 views (70-72 against 70-71) and under it from 6 (22-23 against 71-74).""",
+2026-12-05 with the thin-wall test of `preprocess.wall_points`, and again with the shell closed
+back to the points, `fields.closing`). Against Open3D's pipeline VoroMesh has the lower CD and the
+higher F1 in every condition, NC +0.075 / +0.056 / +0.008 from 1 / 3 / 6 views. Against alpha wrap:
+1 view CD 477 against 721, 3 views 66.4 against 51.2, 6 views 4.08 against 6.50. The closed shell
+took the lid abc_00000007 from 6 views from an IMLS solid (CD 62.2, NC 0.730) to a thin solid
+following both sides of its wall (2.29, NC 0.916; alpha wrap 2.51); from 3 views, all from above,
+its hollow underside is never seen and the IMLS closure fills it (357 against alpha wrap's 5.7:
+a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one view keeps the shell
+(1475 -> 1556; its IMLS target reads 803). The other thin-walled CAD parts (abc_00000006,
+cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
+against 71-74).""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside
@@ -197,12 +199,15 @@ thick. Without normals, 16-neighbour plane fits span both sides (axes 14-33 degr
 points). Where a point's neighbourhood reads two parallel sheets and half its neighbours' do too
 (`preprocess.wall_points`), the plane of its 8 nearest gives the axis and the noise: the cup at
 20k points goes from CD 30.4 (39% of the signs wrong) to 1.70 (2%), against 1.43 with the true
-normals (2026-12-05). Still open: the lid at 20k, whose 8-neighbour fits straddle its wall too
-(26 degrees; 6 neighbours 1.8), stays a shell (CD 10.5), and at 5k points (walls 1.5-1.8 spacings)
-no neighbourhood separates the sides (CD 31-165). With the true normals given, the noise and the
-points' areas count only the neighbours on each point's own side, and every count matches Poisson
-on those normals (CD 4.25 / 1.43 / 1.33 and 4.29 / 1.05 / 0.86 against 4.20 / 1.43 / 1.32 and
-3.83 / 1.04 / 0.86).""",
+normals (2026-12-05). Where no neighbourhood separates the sides (the lid at 20k, whose 8-neighbour
+fits straddle its wall too; both at 5k, walls 1.5-1.8 spacings), the target is a shell around the
+points (`surface.sheet_surface`), since 2026-12-05 closed back to a fifth of its offset from them
+(`fields.closing`): the lid at 5k / 20k CD 31.0 / 10.5 -> 13.1 / 4.75 (F1 0.03 / 0.07 -> 0.15 /
+0.38, NC -0.014 / -0.012), the cup at 5k, which now gets it, 165.2 -> 10.5 (grid auto: 32-48 for
+these clouds, a node of 0.04-0.06 of the diagonal; at grid 64 the lid reads 3.10 / 2.21). With
+the true normals given, the noise and the points' areas count only the neighbours on each point's
+own side, and every count matches Poisson on those normals (CD 4.25 / 1.43 / 1.33 and 4.29 / 1.05
+/ 0.86 against 4.17 / 1.44 / 1.31 and 3.83 / 1.04 / 0.86).""",
     "fit_speed": """\
 `benchmarks/bench_fit_speed.py` times the whole fit against another checkout, interleaved: on a
 quiet 2-core CPU 0.79 / 3.57 s per dev mesh at 32³ / 64³ on average, 18.7 s for the bunny at 128³

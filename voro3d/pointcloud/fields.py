@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "bridge", "depth_limit", "limit_reach", "mesh_field", "node_distance", "supported_pieces", "within"]
+__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "node_distance", "supported_pieces", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
@@ -216,6 +216,61 @@ def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> 
     return field
 
 
+def closing(field, offset: float, *, hug: float, half_thickness: float) -> np.ndarray:
+    """The solid of an offset shell (``field``: negative within ``offset`` of the points) eroded
+    back towards them, to ``hug`` off them where it can (a morphological closing).
+
+    Dilating the points by ``offset`` bridges the gaps between them and joins the two sides of a
+    wall thinner than that; the erosion by ``offset - hug`` keeps what was bridged and brings the
+    surface back to the points, instead of leaving it ``offset`` out on both sides. Where the
+    points are one-sided (a scan of an open sheet) the eroded solid would be ``2 hug`` thin, under
+    the grid's reach: there it keeps a half thickness of ``half_thickness``. How thick the solid
+    is at a node is read from the ridge of the distance to the shell within reach of it: a one-
+    sided sheet's ridge stands ``offset`` deep, a wall's by its half thickness more.
+
+    Parameters
+    ----------
+    field : (r, r, r) float64
+        Signed, negative inside, in fit-frame units near its zero set (over ``[-1, 1]^3``).
+    offset, hug, half_thickness : float
+        Fit-frame units, ``hug <= half_thickness <= offset``.
+
+    Returns
+    -------
+    (r, r, r) float64
+        The closed solid's field, negative inside, in fit-frame units near its zero set.
+    """
+    import open3d as o3d
+    from scipy import ndimage
+
+    from ..geometry import raycasting_scene
+
+    step = 2.0 / (field.shape[0] - 1)
+    shell, faces = _marching_cubes(_outside_at_border(field.copy(), step).astype(np.float32))
+    inside = field < 0
+    # Only nodes within reach of the shell can be eroded: those a cube of that reach around them
+    # finds outside (a cube holds the ball).
+    reach = int(np.ceil(offset / step)) + 2
+    near = inside & ndimage.maximum_filter(~inside, size=2 * reach + 1, mode="nearest")
+    depth = np.where(inside, 2.0 * offset, 0.0)  # deeper than any erosion reaches
+    nodes = o3d.core.Tensor((np.argwhere(near) * step - 1.0).astype(np.float32))
+    depth[near] = raycasting_scene(shell * step - 1.0, faces).compute_distance(nodes).numpy()
+    across = int(np.ceil((offset + half_thickness) / step))
+    ridge = ndimage.maximum_filter(depth, size=2 * across + 1, mode="nearest")
+    keep = np.clip(half_thickness - (ridge - offset), hug, half_thickness)
+    return np.where(inside, offset - keep - depth, offset - keep + field)
+
+
+def _outside_at_border(field, step: float) -> np.ndarray:
+    """``field`` with its outermost nodes set outside (in place): a solid that reaches the box is
+    closed a node inside it."""
+    for axis in range(3):
+        ends = [slice(None)] * 3
+        ends[axis] = [0, -1]
+        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
+    return field
+
+
 def within(field, limit, step: float) -> np.ndarray:
     """``field``'s solid cut to where ``limit`` is negative, with the cavities this leaves (outside
     regions that do not reach the grid's border: the inside of a closed part) filled; ``limit``
@@ -286,11 +341,7 @@ def mesh_field(field, points, min_support):
     triangles : (t, 3) int64
     """
     step = 2.0 / (field.shape[0] - 1)
-    for axis in range(3):
-        ends = [slice(None)] * 3
-        ends[axis] = [0, -1]
-        field[tuple(ends)] = np.maximum(field[tuple(ends)], step)
-    vertices, triangles = _marching_cubes(field.astype(np.float32))
+    vertices, triangles = _marching_cubes(_outside_at_border(field, step).astype(np.float32))
     supported = _drop_unsupported(field, vertices, triangles, points, min_support)
     if supported is not field:
         vertices, triangles = _marching_cubes(supported.astype(np.float32))

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fields import MIN_SUPPORT, GridSurface, bridge, depth_limit, limit_reach, mesh_field, node_distance, within
-from .tuning import MAX_BRIDGE_GAP
+from .fields import MIN_SUPPORT, GridSurface, bridge, closing, depth_limit, limit_reach, mesh_field, node_distance, within
+from .tuning import MAX_BRIDGE_GAP, SHEET_HUG
 
 __all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "target_surface",
            "winding_level"]
@@ -118,7 +118,7 @@ class TargetSurface(GridSurface):
 
 @dataclass
 class SheetSurface(GridSurface):
-    """The shell at distance ``offset`` around the points (:func:`sheet_surface`), as a target.
+    """The closed shell around the points (:func:`sheet_surface`), as a target; ``offset``: the most it keeps from them.
 
     The same interface as :class:`TargetSurface`: ``field`` (negative inside) on a grid over
     ``[-1, 1]^3``, its Marching Cubes mesh ``vertices, triangles`` (the samples lie on it as they
@@ -138,16 +138,17 @@ class SheetSurface(GridSurface):
 
 
 def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
-    """A closed shell around the points at about distance ``offset``: thin walls become thin solids.
+    """A closed solid around the points, a fraction of a spacing off them: thin walls become thin solids.
 
     Needs no normals. Where a wall is sampled on both sides closer than the points' spacing,
     no oriented field can tell its sides apart (the normals of the two sides mix and the IMLS
-    and Poisson fields turn it into a lumpy solid); the level set of the distance to the points
-    is a shell around the wall instead. The distance is blurred by a Gaussian of one node first,
-    so that the union of balls does not show (which pulls the shell in a little at sharp rims).
-    Cavities (regions outside the shell that do not reach the edge of the grid: the inside of a
-    thick, closed part) are filled, and pieces that enclose few points are dropped as for
-    :func:`target_surface`.
+    and Poisson fields turn it into a lumpy solid). The union of balls of radius ``offset``
+    around the points joins the two sides; its distance is blurred by a Gaussian of one node
+    first, so that the balls do not show. Cavities (regions outside the shell that do not reach
+    the edge of the grid: the inside of a thick, closed part) are filled. Then the solid is
+    eroded back to ``SHEET_HUG`` of the offset from the points (:func:`~voro3d.pointcloud.fields.closing`),
+    keeping a half thickness of one node where the points are one-sided, and pieces that
+    enclose few points are dropped as for :func:`target_surface`.
 
     Parameters
     ----------
@@ -162,6 +163,7 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     Returns
     -------
     SheetSurface
+        Its ``offset`` is the most it keeps from the points: the half thickness of one-sided parts.
     """
     from scipy.spatial import cKDTree
 
@@ -170,9 +172,11 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
     distance, _ = node_distance(cKDTree(points), resolution, limit_reach(resolution, offset))
     limit = depth_limit(distance, resolution, offset)
     field = within(limit.copy(), limit, grid_voxel(resolution))
+    half_thickness = min(grid_voxel(resolution), offset)
+    field = closing(field, offset, hug=min(SHEET_HUG * offset, half_thickness), half_thickness=half_thickness)
     field = bridge(field, points, MAX_BRIDGE_GAP)
     supported, vertices, triangles = mesh_field(field, points, MIN_SUPPORT)
-    return SheetSurface(supported, vertices, triangles, float(offset))
+    return SheetSurface(supported, vertices, triangles, float(half_thickness))
 
 
 def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536):
