@@ -170,12 +170,12 @@ The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both
 2026-12-05 with the thin-wall test of `preprocess.wall_points`, and again with the shell closed
 back to the points, `fields.closing`). Against Open3D's pipeline VoroMesh has the lower CD and the
 higher F1 in every condition, NC +0.075 / +0.056 / +0.008 from 1 / 3 / 6 views. Against alpha wrap:
-1 view CD 477 against 721, 3 views 66.4 against 51.2, 6 views 4.08 against 6.50. The closed shell
+1 view CD 464 against 721, 3 views 66.4 against 51.2, 6 views 4.08 against 6.50. The closed shell
 took the lid abc_00000007 from 6 views from an IMLS solid (CD 62.2, NC 0.730) to a thin solid
-following both sides of its wall (2.29, NC 0.916; alpha wrap 2.51); from 3 views, all from above,
+following both sides of its wall (2.27, NC 0.923; alpha wrap 2.51); from 3 views, all from above,
 its hollow underside is never seen and the IMLS closure fills it (357 against alpha wrap's 5.7:
 a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one view keeps the shell
-(1475 -> 1556; its IMLS target reads 803). The other thin-walled CAD parts (abc_00000006,
+(1475 -> 1350; its IMLS target reads 803). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
 against 71-74).""",
     "pointcloud_islands": """\
@@ -201,13 +201,13 @@ points). Where a point's neighbourhood reads two parallel sheets and half its ne
 20k points goes from CD 30.4 (39% of the signs wrong) to 1.70 (2%), against 1.43 with the true
 normals (2026-12-05). Where no neighbourhood separates the sides (the lid at 20k, whose 8-neighbour
 fits straddle its wall too; both at 5k, walls 1.5-1.8 spacings), the target is a shell around the
-points (`surface.sheet_surface`), since 2026-12-05 closed back to a fifth of its offset from them
-(`fields.closing`): the lid at 5k / 20k CD 31.0 / 10.5 -> 13.1 / 4.75 (F1 0.03 / 0.07 -> 0.15 /
-0.38, NC -0.014 / -0.012), the cup at 5k, which now gets it, 165.2 -> 10.5 (grid auto: 32-48 for
-these clouds, a node of 0.04-0.06 of the diagonal; at grid 64 the lid reads 3.10 / 2.21). With
+points (`surface.sheet_surface`), since 2026-12-05 closed back to a quarter spacing from them
+(`fields.closing`): the lid at 5k / 20k CD 31.0 / 10.5 -> 14.0 / 5.08 (F1 0.03 / 0.07 -> 0.19 /
+0.39, NC -0.023 / -0.010), the cup at 5k, which now gets it, 165.2 -> 10.7 (NC 0.921 -> 0.981;
+grid auto: 32-48 for these clouds; at grid 64 the lid reads 4.64 / 2.57). With
 the true normals given, the noise and the points' areas count only the neighbours on each point's
 own side, and every count matches Poisson on those normals (CD 4.25 / 1.43 / 1.33 and 4.29 / 1.05
-/ 0.86 against 4.17 / 1.44 / 1.31 and 3.83 / 1.04 / 0.86).""",
+/ 0.86 against 4.18 / 1.44 / 1.32 and 3.82 / 1.04 / 0.86).""",
     "fit_speed": """\
 `benchmarks/bench_fit_speed.py` times the whole fit against another checkout, interleaved: on a
 quiet 2-core CPU 0.79 / 3.57 s per dev mesh at 32³ / 64³ on average, 18.7 s for the bunny at 128³

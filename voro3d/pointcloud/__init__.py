@@ -83,12 +83,12 @@ the points define (``voro3d/pointcloud/``):
      from the points. When the target misses the points both ways (the points lie on average
      more than 0.15 spacings from it, and it more than a spacing from them; filled holes and
      noise each do only one of these), a shell around the points is tried (``sheet_surface``: the
-     blurred distance to the points at 1.25 spacings, cavities filled, then closed back to a fifth
-     of that from the points, a node thick where they are one-sided; no normals needed) and kept
+     blurred distance to the points at 1.6 spacings, cavities filled, then closed back to a quarter
+     spacing from the points, a node thick where they are one-sided; no normals needed) and kept
      when its misfit (mean distance points → surface + surface → points) is under 0.65 of the
      target's. The wall then comes out as a thin solid that follows both of its sides (a cup lid,
-     abc_00000007, grid 64: CD 2.2 at 20k points and 2.3 from 6 range views, against 62 for the
-     IMLS solid; alpha wrap 2.5). ``PointCloudInfo.target`` says which target was used.
+     abc_00000007, grid 64: CD 2.6 at 20k points and 2.3 from 6 range views, against 14.7 and
+     62 before; alpha wrap 2.5). ``PointCloudInfo.target`` says which target was used.
 4. **Fit**: 75·g² samples (``CLOUD_SAMPLES_PER_FACE``; a mesh fit takes 150·g²) of the target
    mesh (or, for a dense one-sided scan, the points themselves with target samples only in the
    holes); the target labels the cells. Inside cells in tiny groups apart from the rest are turned outside. The result is the usual checked,

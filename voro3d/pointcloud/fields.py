@@ -224,9 +224,11 @@ def closing(field, offset: float, *, hug: float, half_thickness: float) -> np.nd
     wall thinner than that; the erosion by ``offset - hug`` keeps what was bridged and brings the
     surface back to the points, instead of leaving it ``offset`` out on both sides. Where the
     points are one-sided (a scan of an open sheet) the eroded solid would be ``2 hug`` thin, under
-    the grid's reach: there it keeps a half thickness of ``half_thickness``. How thick the solid
-    is at a node is read from the ridge of the distance to the shell within reach of it: a one-
-    sided sheet's ridge stands ``offset`` deep, a wall's by its half thickness more.
+    the grid's reach: there it keeps a half thickness of ``half_thickness``, and where the balls
+    barely meet (the ridge under ``offset``) it is eroded by less, so that no gap between the
+    points opens into a hole. How thick the solid is at a node is read from the ridge of the
+    distance to the shell within reach of it: a one-sided sheet's ridge stands ``offset`` deep, a
+    wall's by its half thickness more.
 
     Parameters
     ----------
@@ -257,7 +259,7 @@ def closing(field, offset: float, *, hug: float, half_thickness: float) -> np.nd
     depth[near] = raycasting_scene(shell * step - 1.0, faces).compute_distance(nodes).numpy()
     across = int(np.ceil((offset + half_thickness) / step))
     ridge = ndimage.maximum_filter(depth, size=2 * across + 1, mode="nearest")
-    keep = np.clip(half_thickness - (ridge - offset), hug, half_thickness)
+    keep = np.clip(half_thickness - (ridge - offset), hug, offset)
     return np.where(inside, offset - keep - depth, offset - keep + field)
 
 

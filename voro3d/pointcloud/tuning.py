@@ -190,12 +190,21 @@ SHEET_POINTS_GATE = 0.15
 SHEET_SURFACE_GATE = 1.0
 SHEET_WIN = 0.65
 # Its offset: this many median spacings, at least a field step. (The noise estimate is no guide
-# there: it reads the two sides of the walls as noise.)
-SHEET_OFFSET = 1.25
+# there: it reads the two sides of the walls as noise.) 1.25 until the shell was closed back to the
+# points (SHEET_HUG): a wider ball then leaves fewer tunnels through a wall sampled at random, where
+# a closing ball fits through the gaps between points. Genus of the shell (the lid abc_00000007 at
+# 5k / 20k points, from 6 range views; the cup abc_00000009 at 5k; the offset shell: 0 / 1 / 5 / 1),
+# offset 1.25 spacings and a hug of 0.25: 15 / 2 / 28 / 16 (white specks through the walls in the
+# pictures); 1.6 and 0.25: 1 / 1 / 16 / 0; 2.0 and 0.25: 0 / 0 / 28 / 0. CD / NC at grid 64: 1.25:
+# 3.10 / 0.910, 2.21 / 0.929, 2.29 / 0.916, 3.14 / 0.962; 1.6: 4.64 / 0.917, 2.57 / 0.931, 2.27 /
+# 0.921, 3.38 / 0.976; 2.0: 6.91 / 0.910, 3.18 / 0.931, 2.55 / 0.925, 3.92 / 0.980 (the wider ball
+# fills the lid's groove).
+SHEET_OFFSET = 1.6
 # The union of balls is closed back to this share of its offset from the points (fields.closing;
-# one-sided parts keep a node's half thickness). CD / NC / F1 at grid 64 (2026-12-05), the offset
-# shell -> closed at 0.5 / 0.35 / 0.2 / 0.1 / 0 (distances to the shell's vertices; exact ones,
-# landed, at 0.2: the lid 3.10 / 2.21 / 2.29, the cup 3.14 / 0.962 / 0.416):
+# one-sided parts keep a node's half thickness): a quarter spacing at SHEET_OFFSET. CD / NC / F1 at
+# grid 64 (2026-12-05, offset 1.25 spacings), the offset shell -> closed at 0.5 / 0.35 / 0.2 / 0.1
+# / 0 (distances to the shell's vertices; exact ones, landed, at 0.2: the lid 3.10 / 2.21 / 2.29,
+# the cup 3.14 / 0.962 / 0.416):
 #   lid abc_00000007 5k points: 47.8 / 0.915 / 0.000 -> 8.79, 5.83, 3.18 / 0.910 / 0.539, 2.99, 3.33
 #   lid 20k points: 14.7 / 0.937 / 0.003 -> 4.32, 2.96, 2.33 / 0.929 / 0.603, 2.26, 2.30
 #   lid from 6 range views (the shell forced): 8.22 / 0.933 / 0.044 -> 2.87, 2.41, 2.29 / 0.917 / 0.592, 2.29, 2.29
@@ -204,7 +213,7 @@ SHEET_OFFSET = 1.25
 # fandisk, armadillo, thingi32_252119, abc_00000001, nmc_sample0) x clean 5k / 20k, the shell forced,
 # a node's offset everywhere -> 0.2: CD lower on 11 of 12 (mean 8.0 -> 5.2), F1 higher on all 12
 # (0.107 -> 0.346), NC -0.003 to -0.043 (mean -0.018).
-SHEET_HUG = 0.2
+SHEET_HUG = 0.16
 # A cloud's mesh is refused by voro3d.reconstruct, not returned, when it encloses more than this many times the volume
 # of the points' convex hull, or when the median point lies more than this many voxels off it beyond
 # the offset its target keeps by design (the sheet's: a cup lid at 5k points, whose shell sits 1.0
