@@ -207,7 +207,8 @@ points (`surface.sheet_surface`), since 2026-12-05 closed back to a quarter spac
 grid auto: 32-48 for these clouds; at grid 64 the lid reads 4.64 / 2.57). With
 the true normals given, the noise and the points' areas count only the neighbours on each point's
 own side, and every count matches Poisson on those normals (CD 4.25 / 1.43 / 1.33 and 4.29 / 1.05
-/ 0.86 against 4.18 / 1.44 / 1.32 and 3.82 / 1.04 / 0.86).""",
+/ 0.86 against 4.2 / 1.4 / 1.3 and 3.8 / 1.04 / 0.86; Open3D's Poisson runs on all cores and moves by
+about 0.02 from run to run).""",
     "fit_speed": """\
 `benchmarks/bench_fit_speed.py` times the whole fit against another checkout, interleaved: on a
 quiet 2-core CPU 0.79 / 3.57 s per dev mesh at 32³ / 64³ on average, 18.7 s for the bunny at 128³
