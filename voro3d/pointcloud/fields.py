@@ -248,7 +248,7 @@ def closing(field, offset: float, *, hug: float, half_thickness: float) -> np.nd
     from ..geometry import raycasting_scene
 
     step = 2.0 / (field.shape[0] - 1)
-    shell, faces = _marching_cubes(_outside_at_border(field.copy(), step).astype(np.float32))
+    shell, faces = _marching_cubes(_outside_at_border(field.astype(np.float32), step))  # a copy: field stays
     inside = field < 0
     # Only nodes within reach of the shell can be eroded: those a cube of that reach around them
     # finds outside (a cube holds the ball).
