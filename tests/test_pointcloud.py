@@ -563,14 +563,19 @@ def test_poisson_depth_goes_finer_only_where_the_points_are_dense():
     assert poisson_depth(64, 1e-5) == 10
 
 
-def test_the_mesh_is_split_before_the_snap_only_where_dense_points_made_the_target_finer():
+def test_the_mesh_is_split_before_the_snap_to_the_detail_its_points_hold():
     from voro3d.pointcloud.resolution import refine_levels
 
-    assert refine_levels("poisson", poisson_depth(64, 0.002), 64, 128) == 2  # 1M bunny points: to the octree cells
-    assert refine_levels("poisson", 9, 64, 256) == 1
-    assert refine_levels("poisson", 10, 64, 64) == 2  # a grid given by hand: at most MAX_REFINE
-    assert refine_levels("poisson", poisson_depth(64, 0.0065), 64, 90) == 0  # 100k
-    assert refine_levels("imls", 9, 64, 128) == refine_levels("sheet", 9, 64, 128) == 0  # their field follows the grid
+    # 1M bunny points, grid 128: to the depth-9 octree's cells (the points are finer still).
+    assert refine_levels("poisson", poisson_depth(64, 0.002), 128, 0.002, exact=True) == 2
+    assert refine_levels("poisson", 9, 256, 1e-4, exact=True) == 1
+    assert refine_levels("poisson", 10, 64, 1e-4, exact=True) == 2  # a grid given by hand: at most MAX_REFINE
+    # 100k points at grid 64: voxels 4.9 spacings wide, two spacings' detail one split finer.
+    assert refine_levels("poisson", 8, 64, 0.0065, exact=True) == 1
+    # 5k and 20k points hold no detail finer than the voxels, however fine their octree.
+    assert refine_levels("poisson", 8, 64, 0.024, exact=True) == refine_levels("poisson", 8, 64, 0.013, exact=True) == 0
+    assert refine_levels("poisson", 8, 64, 0.0065, exact=False) == 0  # noise is no detail
+    assert refine_levels("imls", 9, 128, 1e-4, exact=True) == refine_levels("sheet", 9, 128, 1e-4, exact=True) == 0
 
 
 def test_node_distance_matches_a_query_of_every_node():

@@ -219,3 +219,52 @@ def test_refine_splits_the_triangles_before_the_fit_and_keeps_every_guarantee(to
     for refine, error in ((1, "needs a surface"), (-1, "refine must be"), (True, "refine must be")):
         with pytest.raises(ValueError, match=error):
             shape.to_open3d(refine=refine)
+
+
+def test_a_split_mesh_keeps_the_creases_its_smooth_target_rounds(monkeypatch):
+    import open3d as o3d
+
+    import voro3d
+    from voro3d import snapping
+    from voro3d.topology import creased_triangles
+
+    box = o3d.geometry.TriangleMesh.create_box().translate((-0.5, -0.5, -0.5)).subdivide_midpoint(4)
+    rounded = box.filter_smooth_taubin(number_of_iterations=20)  # its edges and corners rounded off
+    shape = voro3d.fit(box, grid=16, steps=100, seed=0)[0]
+    # The box's edges, sampled: how far the mesh lies from them says whether it kept them.
+    t = np.linspace(-0.4, 0.4, 9)
+    edges = np.vstack([np.stack(np.roll([t, np.full(9, a), np.full(9, b)], k, axis=0), axis=1)
+                       for k in range(3) for a in (-0.5, 0.5) for b in (-0.5, 0.5)])
+
+    def off_edges(mesh):
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+        return float(np.mean(scene.compute_distance(o3d.core.Tensor(edges.astype(np.float32))).numpy()))
+
+    kept = shape.to_open3d(surface=rounded, refine=1)
+    monkeypatch.setattr(snapping, "CREASE_DEGREES", 180.0)  # no side counts as a crease
+    followed = shape.to_open3d(surface=rounded, refine=1)
+    for mesh in (kept, followed):
+        report = check_watertight(mesh)
+        assert report.watertight and report.self_intersecting_pairs == 0
+    assert off_edges(kept) < 0.5 * off_edges(followed)
+    # A cube's sides between its faces turn by 90 degrees; the faces' own sides by none.
+    vertices, triangles = np.asarray(box.vertices), np.asarray(box.triangles)
+    creased = creased_triangles(vertices, triangles, 75.0)
+    corners = vertices[triangles]
+    # A side runs along an edge of the cube where its ends share two coordinates at +-0.5.
+    along = [np.sum(np.isclose(np.abs(corners[:, i]), 0.5) & np.isclose(corners[:, i], corners[:, (i + 1) % 3]), axis=1) >= 2
+             for i in range(3)]
+    on_an_edge = np.sum(np.any(along, axis=0))
+    assert creased.sum() == on_an_edge > 0 and not creased_triangles(vertices, triangles, 95.0).any()
+    from voro3d.snapping import snap_to_surface
+
+    cleaned = shape.to_open3d()
+    vertices, triangles = np.asarray(cleaned.vertices), np.asarray(cleaned.triangles)
+    still = np.zeros(len(vertices), bool)
+    still[::2] = True
+    moved, _ = snap_to_surface(vertices, triangles, rounded, voxel=shape.voxel, fixed=still)
+    np.testing.assert_array_equal(moved[still], vertices[still])
+    assert not np.array_equal(moved, vertices)
+    with pytest.raises(ValueError, match="fixed must be one bool per vertex"):
+        snap_to_surface(vertices, triangles, rounded, voxel=shape.voxel, fixed=still[:3])

@@ -84,7 +84,8 @@ def split_triangles(vertices: np.ndarray, triangles: np.ndarray, times: int) -> 
     neighbours: 3 of 12 dev meshes at 20k points, coloured (:func:`voro3d.pointcloud.colored_mesh`).
 
     Returns ``(vertices, triangles, splits)``: ``(v, 3)`` float64, ``(4^splits t, 3)`` int64, and
-    the splits made.
+    the splits made. The first vertices are the input's, and the pieces of triangle ``i`` are
+    triangles ``4^splits i`` to ``4^splits (i + 1) - 1``.
     """
     from .io import mesh_arrays, to_triangle_mesh
     from .watertight import self_intersections

@@ -71,6 +71,17 @@ __all__ = ["SnapInfo", "snap", "snap_to_surface"]
 MAX_MOVE = 0.25  # voxels; half a voxel gained nothing on the noisy dev clouds, snapped without smoothing
 MAX_TURN = 90.0  # degrees
 MIN_ANGLE = 5.0  # degrees: the sliver angle of metrics.triangle_quality
+# A split mesh (VoroMesh.to_open3d's refine) keeps the pieces of the triangles at a crease, a side
+# where its surface turns by more than this, where they are: a smooth target rounds the crease.
+# 11 CAD dev meshes from 2x10^5 true-normal points (bench_edges' clouds, grid "auto", most split once)
+# and the 12 benchmark meshes at 10^5 clean points (grid 64, split once or twice; 2026-12-05), mean
+# edge F-score / NC: unsplit 0.345 / 0.9809; split, nothing kept: abc_00000003 0.474 -> 0.342,
+# abc_00000005 0.699 -> 0.583 (stopped there) / 0.9856; kept past 40 degrees: abc_00000003 0.566,
+# abc_00000005 0.721, fandisk 0.507 -> 0.587 / armadillo 0.9674 -> 0.9656, thingi32_252119 0.9308 ->
+# 0.9253 (34% and 59% of their grid-64 triangles have a side past 40 degrees, 4% and 16% past 75:
+# facets the fit left tilted read as creases); past 60: 0.360 / 0.9823 (screwdriver 0.346 -> 0.289);
+# past 75: 0.358 / 0.9840, no mesh's edge F-score more than 0.005 under unsplit.
+CREASE_DEGREES = 75.0
 # Least-squares fit: residuals at the vertices and at these barycentric points of each triangle;
 # ITERATIONS steps of DAMPING times the Gauss-Newton step. Bunny and rocker-arm clouds, triangles
 # more than 30 degrees off the true normal after 3 steps of 0.5 / 6 of 0.7 / 10 of 0.8: clean 20k
@@ -230,7 +241,7 @@ def snap(mesh, surface, *, voxel: float | None = None, max_move: float = MAX_MOV
 
 
 def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: float = MAX_MOVE,
-                    max_turn: float = MAX_TURN, smoothing: float = 0.0, fit: str = "faces"):
+                    max_turn: float = MAX_TURN, smoothing: float = 0.0, fit: str = "faces", fixed=None):
     """Vertices moved to fit ``surface`` where no guarantee breaks.
 
     Parameters
@@ -262,6 +273,8 @@ def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: flo
         squared distance to the target; without, CD / NC (5 evaluation seeds) 0.4217 / 0.9935 ->
         0.4206 / 0.9955 (Poisson depth 9: 0.4195 / 0.9965), armadillo 0.4585 / 0.9854 -> 0.4577 /
         0.9864; homer's triangles under 5 degrees 2.0 -> 2.7% (Poisson's own 5.0%).
+    fixed : (n,) bool, optional
+        Vertices that stay where they are.
 
     Returns
     -------
@@ -294,6 +307,11 @@ def snap_to_surface(vertices, triangles, surface, *, voxel: float, max_move: flo
     limit = max_move * voxel
     step *= np.minimum(1.0, limit / np.maximum(length, 1e-300))[:, None]
     moving = (length > 0) & ~shared_positions(vertices)
+    if fixed is not None:
+        fixed = np.asarray(fixed, bool)
+        if fixed.shape != (len(vertices),):
+            raise ValueError(f"fixed must be one bool per vertex, shape ({len(vertices)},), got {fixed.shape}")
+        moving &= ~fixed
     graph_before = _graph_stars(vertices, triangles)
     moving[_star_corners(triangles, ~graph_before)] = False  # stars that are not graphs stay as they are
     wanted = int(moving.sum())

@@ -9,7 +9,8 @@ import numpy as np
 
 from .geometry import components
 
-__all__ = ["half_edges", "edge_groups", "edge_counts", "open_edge_count", "twins", "umbrellas", "split_nonmanifold"]
+__all__ = ["half_edges", "edge_groups", "edge_counts", "open_edge_count", "twins", "creased_triangles", "umbrellas",
+           "split_nonmanifold"]
 
 
 def half_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -116,6 +117,21 @@ def twins(vertices: np.ndarray, triangles: np.ndarray, *, separate: np.ndarray |
                                        None if separate is None else separate[group[many]])
         twin[order[many]] = twin_many
     return twin, order, group, starts
+
+
+def creased_triangles(vertices: np.ndarray, triangles: np.ndarray, degrees: float) -> np.ndarray:
+    """(f,) bool: the triangles with a side across which the surface turns by more than ``degrees``
+    (the angle between the normals of the two triangles on it; sides not shared by exactly two
+    consistently oriented triangles do not count)."""
+    from .geometry import face_normals
+
+    twin = twins(vertices, triangles)[0]
+    normals = face_normals(vertices, triangles)
+    paired = np.flatnonzero(twin >= 0)
+    cosine = np.einsum("ij,ij->i", normals[paired // 3], normals[twin[paired] // 3])
+    creased = np.zeros(len(triangles), bool)
+    creased[paired[cosine < np.cos(np.radians(degrees))] // 3] = True
+    return creased
 
 
 def _pair_around_edges(vertices, triangles, halfedge, group, forward, flip):

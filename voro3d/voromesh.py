@@ -103,7 +103,9 @@ class VoroMesh:
             fewer where a split would make triangles cross) before the fit to ``surface``, which then
             shapes the surface past the grid's faces: for a ``surface`` finer than the grid (a cloud's
             target from dense points). Split once, the faces are fitted; split more, the vertices go
-            onto ``surface`` (:func:`voro3d.snapping.snap_to_surface`'s ``fit``). Needs ``surface``.
+            onto ``surface`` (:func:`voro3d.snapping.snap_to_surface`'s ``fit``); the pieces of a
+            triangle at a crease (``snapping.CREASE_DEGREES``) stay where they are, since a smooth
+            ``surface`` rounds it. Needs ``surface``.
         tolerance : float
             As in :func:`voro3d.extract_mesh`.
 
@@ -145,12 +147,20 @@ class VoroMesh:
                 vertices, triangles, info = clean_surface(vertices, triangles, voxel=self.voxel)
                 if surface is not None:
                     from .geometry import split_triangles
-                    from .snapping import snap_to_surface
+                    from .snapping import CREASE_DEGREES, snap_to_surface
+                    from .topology import creased_triangles
 
+                    # A smooth target rounds the creases the Voronoi faces hold: the pieces of a
+                    # triangle at one stay as they are (a triangle's pieces are numbered together, in its place).
+                    creased = creased_triangles(vertices, triangles, CREASE_DEGREES) if refine else None
                     vertices, triangles, splits = split_triangles(vertices, triangles, refine)
+                    fixed = None
+                    if splits:
+                        fixed = np.zeros(len(vertices), bool)
+                        fixed[triangles[np.repeat(creased, 4**splits)]] = True
                     # Split more than once, the faces' chords no longer cut into the surface: the vertices go onto it.
                     vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing,
-                                                  fit="vertices" if splits > 1 else "faces")
+                                                  fit="vertices" if splits > 1 else "faces", fixed=fixed)
             return to_triangle_mesh(vertices, triangles, normals=True)
 
     def to_polygons(self, *, tolerance: float = DEFAULT_TOLERANCE):

@@ -16,7 +16,7 @@ from ..generators import AdaptiveBand
 from ..geometry import face_area_vectors, grid_voxel
 from .poisson import poisson_depth
 from .tuning import (AUTO_GRID_RANGE, AUTO_SPACINGS_PER_VOXEL, BAND_TOLERANCE, CLOUD_SAMPLES_PER_FACE, COARSEST_GRID,
-                     HOLE_VOXELS, MAX_REFINE, MAX_TARGET_GRID, MIN_SPACINGS_PER_VOXEL)
+                     DETAIL_SPACINGS, HOLE_VOXELS, MAX_REFINE, MAX_TARGET_GRID, MIN_SPACINGS_PER_VOXEL)
 
 __all__ = ["auto_grid", "band_levels", "choose_grid", "fit_band", "max_supported_grid", "refine_levels", "target_samples"]
 
@@ -61,33 +61,23 @@ def choose_grid(grid, spacing: float, *, adaptive: bool, exact: bool = True) -> 
     return grid, 0
 
 
-def refine_levels(kind: str, depth: int, target_grid: int, grid: int) -> int:
-    """Times the cleaned triangles are split in four before their fit to the target
-    (:meth:`voro3d.VoroMesh.to_open3d`'s ``refine``): for a Poisson target that dense points
-    made finer than ``target_grid`` asks (:func:`~voro3d.pointcloud.poisson.poisson_depth`), until
-    the triangles are about as fine as its octree cells (the finest voxel of ``grid`` halved,
-    rounded, at most ``MAX_REFINE`` times); else never.
+def refine_levels(kind: str, depth: int, grid: int, spacing: float, *, exact: bool) -> int:
+    """Times the cleaned triangles are split in four before their fit to a Poisson target
+    (:meth:`voro3d.VoroMesh.to_open3d`'s ``refine``): until they are about as fine as the finest
+    detail the target holds, rounded in powers of two, at most ``MAX_REFINE`` times. That detail is
+    the coarser of the target's octree cell and ``DETAIL_SPACINGS`` times the median point
+    ``spacing`` (fit frame): points a spacing apart show nothing finer than two spacings, so sparse clouds are never
+    split however fine the octree. Noisy points (not ``exact``) never: their target's bumps are noise
+    (bunny and cow, 20k points, 0.5% noise, split once: CD +1% / +3%). IMLS and shell targets never:
+    their field follows the grid.
 
-    The grid's flat faces then no longer cut the chords of the detail the target holds. 10^6
-    true-normal points (bench_large's clouds, grid "auto": 128 over 3 levels, target depth 9), CD / NC
-    the means of 5 evaluation seeds, unsplit -> split once: bunny 0.5930 / 0.9886 -> 0.5903 / 0.9903,
-    armadillo 0.4623 / 0.9775 -> 0.4601 / 0.9823, fandisk 0.6630 / 0.9881 -> 0.6635 / 0.9889,
-    abc_00000005 0.6334 / 0.9943 -> 0.6328 / 0.9945 (Poisson depth 9 alone, same run: 0.5908,
-    0.4589, 0.6635, 0.6349); faces 4x (40-163k, against Poisson's 0.9-1.5M), the mesh stage about
-    3 s more. Split twice to the cells of the depth-9 target, the vertices onto it (quiet machine,
-    2026-12-04, ``benchmarks/results/large_quiet.md`` -> ``large.md``), CD / NC / whole seconds:
-    bunny 0.5909 / 0.9903 / 53.0 -> 0.5872 / 0.9931 / 42.9, armadillo 0.4602 / 0.9823 / 43.0 ->
-    0.4577 / 0.9864 / 51.2, fandisk 0.6639 / 0.9889 -> 0.6617 / 0.9901, abc_00000005 0.6323 /
-    0.9945 -> 0.6315 / 0.9950, abc_00000008 0.2451 / 0.9907 -> 0.2455 / 0.9919, homer 0.4218 /
-    0.9929 -> 0.4206 / 0.9955 (Poisson depth 9 in the second run: 0.5901 / 0.9938, 0.4594 / 0.9874,
-    0.6618 / 0.9907, 0.6333 / 0.9950, 0.2451 / 0.9920, 0.4212 / 0.9964); the mesh stage 5-6 s ->
-    5-10 s, 4x the faces (160-650k, Poisson's 0.4-1.5M). With 10^6 evaluation samples, whose
-    spacing no longer hides the facets, armadillo CD 0.0480 -> 0.0469 (Poisson 0.0464). Its faces
-    fitted in least squares at the second split too: armadillo 0.4590 / 0.9851, 6 s more.
+    The grid's flat faces then no longer cut the chords of the detail the target holds. The
+    measurements: beside ``DETAIL_SPACINGS`` and ``MAX_REFINE`` in :mod:`~voro3d.pointcloud.tuning`.
     """
-    if kind != "poisson" or depth <= poisson_depth(target_grid):
+    if kind != "poisson" or not exact:
         return 0
-    return int(np.clip(round(np.log2(2**depth / (grid - 1))), 1, MAX_REFINE))
+    detail = max(2.0 / 2**depth, DETAIL_SPACINGS * spacing)
+    return int(np.clip(round(np.log2(grid_voxel(grid) / detail)), 0, MAX_REFINE))
 
 
 def fit_band(surface_vertices: np.ndarray, grid: int, levels: int) -> AdaptiveBand | None:

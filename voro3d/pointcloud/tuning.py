@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
@@ -75,8 +75,31 @@ TARGET_CELL_SPACINGS = 1.5
 # Most midpoint splits of a dense cloud's mesh before its fit to the target (resolution.refine_levels):
 # each quadruples the faces. Two bring a 128 grid's triangles to a depth-9 target's cells (1M points:
 # 520-650k faces against Poisson depth 9's 1.1-1.5M); a 64 grid asked for by hand would want three,
-# 64 times its faces.
+# 64 times its faces. 10^6 true-normal points (bench_large's clouds, grid "auto": 128 over 3 levels, target
+# depth 9), CD / NC the means of 5 evaluation seeds, unsplit -> split once: bunny 0.5930 / 0.9886 ->
+# 0.5903 / 0.9903, armadillo 0.4623 / 0.9775 -> 0.4601 / 0.9823, fandisk 0.6630 / 0.9881 -> 0.6635 /
+# 0.9889, abc_00000005 0.6334 / 0.9943 -> 0.6328 / 0.9945; split twice, to the cells of the depth-9
+# target (quiet machine, 2026-12-04, benchmarks/results/large_quiet.md -> large.md), CD / NC / whole
+# seconds: bunny 0.5909 / 0.9903 / 53.0 -> 0.5872 / 0.9931 / 42.9, armadillo 0.4602 / 0.9823 / 43.0 ->
+# 0.4577 / 0.9864 / 51.2, fandisk 0.6639 / 0.9889 -> 0.6617 / 0.9901, abc_00000005 0.6323 / 0.9945 ->
+# 0.6315 / 0.9950, abc_00000008 0.2451 / 0.9907 -> 0.2455 / 0.9919, homer 0.4218 / 0.9929 -> 0.4206 /
+# 0.9955 (Poisson depth 9 in the second run: 0.5901 / 0.9938, 0.4594 / 0.9874, 0.6618 / 0.9907, 0.6333 /
+# 0.9950, 0.2451 / 0.9920, 0.4212 / 0.9964); the mesh stage 5-6 s -> 5-10 s, 4x the faces (160-650k,
+# Poisson's 0.4-1.5M). With 10^6 evaluation samples, whose spacing no longer hides the facets,
+# armadillo CD 0.0480 -> 0.0469 (Poisson 0.0464).
 MAX_REFINE = 2
+# A cloud's mesh is split until its triangles are about as fine as the finest detail its Poisson target
+# holds (resolution.refine_levels): the target's octree cell, or this many median spacings, the coarser
+# (points a spacing apart show nothing finer than two spacings: sparse clouds are not split however fine
+# the octree). Noisy clouds are not split (bunny, cow, elephant at 0.5% noise, 20k points, once: CD +1%,
+# +3%, +3%). 12 benchmark meshes at grid 64, split 0 / 1 / 2 times (2026-12-05, /tmp sweep, shared
+# machine), mean NC: clean 100k 0.9809 / 0.9847 / 0.9867, 2% outliers 0.9792 / 0.9830 / 0.9848, 20x
+# density ramp 0.9788 / 0.9825 / 0.9844, a third missing 0.8975 / 0.9001 / 0.9010 (this rule, 1-2 splits
+# there: 0.9856, 0.9830, 0.9837, 0.9001; Open3D's Poisson in the benchmark 0.985, 0.980, 0.964, 0.902);
+# CD about 1.3% lower at one split, the same at two; faces 12k -> 46k / 186k (Poisson's 100-220k), the
+# mesh stage 0.5 -> 1.2 / 2.3 s. Clean 5k and 20k (voxels 1.1-3.4 spacings: not split, but for one
+# 20k cloud) would gain 0.002-0.003 NC for 4x the faces, at 5k more than Poisson's.
+DETAIL_SPACINGS = 2.0
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
 # Clean points closer than this share of a voxel are dense: exact samples themselves, and their
