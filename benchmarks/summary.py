@@ -108,7 +108,12 @@ triangles cover 28% of its area on the bunny).""",
 pipeline as a user runs it (statistical outlier removal, normals, tangent-plane orientation,
 screened Poisson depth 7 or 8) on clouds sampled from the dev meshes under nine conditions (5k-100k
 points, 0.25-1% noise, a 20× density ramp, 2% outliers, a third missing), on colours, and on the real
-scans of `../shared/data/scans`. The pipeline itself is described in `voro3d/pointcloud/__init__.py`.""",
+scans of `../shared/data/scans`. The pipeline itself is described in `voro3d/pointcloud/__init__.py`.
+Rows merged from several runs; on 2026-12-05 (12:12-12:52, load 1.0-1.9) both methods and alpha wrap
+ran in one run on 4 meshes (abc_00000005, abc_00000008, fandisk, rocker arm) x 9 conditions: VoroMesh
+215 s against Open3D's pipeline 1026 s summed (0.21x), 161 s against 282 s (0.57x) on the 30 rows
+where Open3D's orientation finished within its 120 s (its pipeline took 10-81 s on 8 of them); on the dense
+rows the mesh is now split to the detail the points hold (clean 100k NC 0.981 -> 0.984).""",
     "adaptive": """\
 `benchmarks/bench_adaptive.py`: the adaptive band `grid="auto"` fits on a dense cloud (octree from
 128³ up to 32³ voxels, split where the target bends) against uniform bands of 48-128³, on 10⁶
@@ -162,8 +167,10 @@ winding-number field, at most `SHELL_DEPTH` (6% of the diagonal) behind the seen
 points do not enclose it: a shell, not a block out to the box, while Poisson runs flaps out of it.
 Where they do (3 views), the unseen parts are closed at a winding number of at least `HOLE_LEVEL`
 (0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5). Run on a
-quiet machine: VoroMesh takes 2.00x Open3D's pipeline summed (3.3x on one view, where Open3D's
-orientation and Poisson take about a second), 62% of it the target surface.""",
+quiet machine: VoroMesh takes 2.03x Open3D's pipeline summed (3.3x on one view, where Open3D's
+orientation and Poisson take about a second), 63% of it the target surface. The 6-view rows were
+rerun on 2026-12-05 with the mesh split to the detail the points hold (5 of 12 split once: CD 1.290
+-> 1.286, NC 0.971 -> 0.972, 5.2 -> 5.4 s a cloud).""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
@@ -186,9 +193,14 @@ VoroMesh outputs in two pieces (elephant with a third missing, spot from one vie
 of 2 and 4 islands (the elephant's trunk tip lies past the cut with no point joining it).""",
     "edges": """\
 `benchmarks/bench_edges.py`: sharp edges (NDC-style edge samples, F-score at 0.005) of the 11 CAD dev
-meshes from 200k oriented points. VoroMesh 0.371 on average against Poisson's 0.266 at depth 8 (the
-depth of our target) with 5-22x fewer faces than it, and 0.500 at depth 9 (9-78x more faces than
-ours); at equal CD except abc_00000001, whose triangles are not consistently oriented.""",
+meshes from 200k oriented points. VoroMesh 0.358 on average against Poisson's 0.260 at depth 8 (the
+depth of our target) with 1.4-13x fewer faces than it, and 0.459 at depth 9 (5-20x more faces than
+ours); at equal CD except abc_00000001, whose triangles are not consistently oriented. Rerun on
+2026-12-05 with the mesh split to the detail the points hold, the pieces of triangles at a crease
+kept as they are (`snapping.CREASE_DEGREES`): 0.345 -> 0.358 against the unsplit meshes of the code
+before (7 of 11 split once, 4x their faces; timed beside the test suite). The table of 2026-12-04
+(0.371) predates the Poisson target solved in two halves from 60k points (9e20eda), which took
+abc_00000006 from 0.385 to 0.273 (bisected).""",
     "given_normals": """\
 `benchmarks/bench_given_normals.py`: clouds with their own normals (from `estimate_normals()`,
 negated, true) against the same clouds without; given normals are checked and re-oriented where

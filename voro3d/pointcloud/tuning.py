@@ -95,10 +95,13 @@ MAX_REFINE = 2
 # +3%, +3%). 12 benchmark meshes at grid 64, split 0 / 1 / 2 times (2026-12-05, /tmp sweep, shared
 # machine), mean NC: clean 100k 0.9809 / 0.9847 / 0.9867, 2% outliers 0.9792 / 0.9830 / 0.9848, 20x
 # density ramp 0.9788 / 0.9825 / 0.9844, a third missing 0.8975 / 0.9001 / 0.9010 (this rule, 1-2 splits
-# there: 0.9856, 0.9830, 0.9837, 0.9001; Open3D's Poisson in the benchmark 0.985, 0.980, 0.964, 0.902);
-# CD about 1.3% lower at one split, the same at two; faces 12k -> 46k / 186k (Poisson's 100-220k), the
-# mesh stage 0.5 -> 1.2 / 2.3 s. Clean 5k and 20k (voxels 1.1-3.4 spacings: not split, but for one
-# 20k cloud) would gain 0.002-0.003 NC for 4x the faces, at 5k more than Poisson's.
+# there, nothing kept at creases: 0.9856, 0.9830, 0.9837, 0.9001); CD about 1.3% lower at one split, the
+# same at two; faces 12k -> 46k / 186k (Poisson's 100-220k), the mesh stage 0.5 -> 1.2 / 2.3 s. Clean 5k
+# and 20k (voxels 1.1-3.4 spacings: not split, but for one 20k cloud) would gain 0.002-0.003 NC for 4x
+# the faces, at 5k more than Poisson's. As landed, with the pieces at creases kept (snapping.CREASE_DEGREES;
+# benchmarks/results/pointcloud.md, 2026-12-05): NC 0.9841 / 0.9821 / 0.9824 / 0.8993 against Open3D's
+# 0.9855 / 0.9797 / 0.9641 / 0.9019, faces 85k / 47k / 99k / 49k, 0.3-0.7 s more a cloud; the 38 dev
+# meshes at clean 100k NC 0.9822 -> 0.9849, CD 0.6547 -> 0.6519 (pointcloud_dense38.md).
 DETAIL_SPACINGS = 2.0
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
