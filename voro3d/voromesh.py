@@ -103,9 +103,9 @@ class VoroMesh:
             fewer where a split would make triangles cross) before the fit to ``surface``, which then
             shapes the surface past the grid's faces: for a ``surface`` finer than the grid (a cloud's
             target from dense points). Split once, the faces are fitted; split more, the vertices go
-            onto ``surface`` (:func:`voro3d.snapping.snap_to_surface`'s ``fit``); the pieces of a
-            triangle at a crease (``snapping.CREASE_DEGREES``) stay where they are, since a smooth
-            ``surface`` rounds it. Needs ``surface``.
+            onto ``surface`` (:func:`voro3d.snapping.snap_to_surface`'s ``fit``). Split once, the
+            pieces of a triangle at a crease (``snapping.CREASE_DEGREES``) stay where they are, since
+            a smooth ``surface`` rounds it. Needs ``surface``.
         tolerance : float
             As in :func:`voro3d.extract_mesh`.
 
@@ -150,14 +150,16 @@ class VoroMesh:
                     from .snapping import CREASE_DEGREES, snap_to_surface
                     from .topology import creased_triangles
 
-                    # A smooth target rounds the creases the Voronoi faces hold: the pieces of a
-                    # triangle at one stay as they are (a triangle's pieces are numbered together, in its place).
+                    # Split once, the faces are fitted to a target that rounds the creases the
+                    # Voronoi faces hold: the pieces of a triangle at one stay as they are (a
+                    # triangle's pieces are numbered together, in its place). Split more, the
+                    # vertices go onto a target as fine as they are, creases too.
                     creased = creased_triangles(vertices, triangles, CREASE_DEGREES) if refine else None
                     vertices, triangles, splits = split_triangles(vertices, triangles, refine)
                     fixed = None
-                    if splits:
+                    if splits == 1:
                         fixed = np.zeros(len(vertices), bool)
-                        fixed[triangles[np.repeat(creased, 4**splits)]] = True
+                        fixed[triangles[np.repeat(creased, 4)]] = True
                     # Split more than once, the faces' chords no longer cut into the surface: the vertices go onto it.
                     vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing,
                                                   fit="vertices" if splits > 1 else "faces", fixed=fixed)
