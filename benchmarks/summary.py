@@ -113,7 +113,7 @@ Rows merged from several runs; on 2026-12-05 (12:12-12:52, load 1.0-1.9) both me
 ran in one run on 4 meshes (abc_00000005, abc_00000008, fandisk, rocker arm) x 9 conditions: VoroMesh
 215 s against Open3D's pipeline 1026 s summed (0.21x), 161 s against 282 s (0.57x) on the 30 rows
 where Open3D's orientation finished within its 120 s (its pipeline took 10-81 s on 8 of them); on the dense
-rows the mesh is now split to the detail the points hold (clean 100k NC 0.981 -> 0.984).""",
+rows the mesh is now split to the detail the points hold (clean 100k NC 0.981 -> 0.985).""",
     "adaptive": """\
 `benchmarks/bench_adaptive.py`: the adaptive band `grid="auto"` fits on a dense cloud (octree from
 128³ up to 32³ voxels, split where the target bends) against uniform bands of 48-128³, on 10⁶

@@ -98,10 +98,10 @@ MAX_REFINE = 2
 # there, nothing kept at creases: 0.9856, 0.9830, 0.9837, 0.9001); CD about 1.3% lower at one split, the
 # same at two; faces 12k -> 46k / 186k (Poisson's 100-220k), the mesh stage 0.5 -> 1.2 / 2.3 s. Clean 5k
 # and 20k (voxels 1.1-3.4 spacings: not split, but for one 20k cloud) would gain 0.002-0.003 NC for 4x
-# the faces, at 5k more than Poisson's. As landed, with the pieces at creases kept (snapping.CREASE_DEGREES;
-# benchmarks/results/pointcloud.md, 2026-12-05): NC 0.9841 / 0.9821 / 0.9824 / 0.8993 against Open3D's
-# 0.9855 / 0.9797 / 0.9641 / 0.9019, faces 85k / 47k / 99k / 49k, 0.3-0.7 s more a cloud; the 38 dev
-# meshes at clean 100k NC 0.9822 -> 0.9849, CD 0.6547 -> 0.6519 (pointcloud_dense38.md).
+# the faces, at 5k more than Poisson's. As landed, split once with the pieces at creases kept
+# (snapping.CREASE_DEGREES; benchmarks/results/pointcloud.md, 2026-12-05): NC 0.9852 / 0.9821 / 0.9835 /
+# 0.8993 against Open3D's 0.9855 / 0.9797 / 0.9641 / 0.9019, faces 85k / 47k / 99k / 49k, seconds a cloud
+# within run-to-run noise (clean 100k 9.7 -> 9.2, outliers 7.9 -> 8.3); the 38 dev meshes at clean 100k NC 0.9822 -> 0.9855, CD 0.6547 -> 0.6513 (pointcloud_dense38.md).
 DETAIL_SPACINGS = 2.0
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
