@@ -154,12 +154,12 @@ class VoroMesh:
                     # Voronoi faces hold: the pieces of a triangle at one stay as they are (a
                     # triangle's pieces are numbered together, in its place). Split more, the
                     # vertices go onto a target as fine as they are, creases too.
-                    creased = creased_triangles(vertices, triangles, CREASE_DEGREES) if refine else None
+                    unsplit = vertices, triangles
                     vertices, triangles, splits = split_triangles(vertices, triangles, refine)
                     fixed = None
                     if splits == 1:
                         fixed = np.zeros(len(vertices), bool)
-                        fixed[triangles[np.repeat(creased, 4)]] = True
+                        fixed[triangles[np.repeat(creased_triangles(*unsplit, CREASE_DEGREES), 4)]] = True
                     # Split more than once, the faces' chords no longer cut into the surface: the vertices go onto it.
                     vertices, _ = snap_to_surface(vertices, triangles, surface, voxel=info.voxel, smoothing=smoothing,
                                                   fit="vertices" if splits > 1 else "faces", fixed=fixed)

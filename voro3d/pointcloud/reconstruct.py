@@ -415,7 +415,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                           voxel=grid_voxel(grid) / frame.scale, offset=target.offset / frame.scale if kind == "sheet" else 0.0,
                           tiles=n_tiles, seconds=seconds)
     surface = SnapTarget(frame.invert(surface_vertices), target.triangles, snap=not target.dense,
-                         smoothing=NOISY_SMOOTHING if noisy else 0.0, refine=refine_levels(kind, depth, grid, stats.median_spacing, exact=not noisy))
+                         smoothing=NOISY_SMOOTHING if noisy else 0.0,
+                         refine=refine_levels(kind, depth, grid, stats.median_spacing, exact=not noisy))
     return shape, surface, info
 
 

@@ -14,7 +14,6 @@ import numpy as np
 
 from ..generators import AdaptiveBand
 from ..geometry import face_area_vectors, grid_voxel
-from .poisson import poisson_depth
 from .tuning import (AUTO_GRID_RANGE, AUTO_SPACINGS_PER_VOXEL, BAND_TOLERANCE, CLOUD_SAMPLES_PER_FACE, COARSEST_GRID,
                      DETAIL_SPACINGS, HOLE_VOXELS, MAX_REFINE, MAX_TARGET_GRID, MIN_SPACINGS_PER_VOXEL)
 
@@ -66,10 +65,10 @@ def refine_levels(kind: str, depth: int, grid: int, spacing: float, *, exact: bo
     (:meth:`voro3d.VoroMesh.to_open3d`'s ``refine``): until they are about as fine as the finest
     detail the target holds, rounded in powers of two, at most ``MAX_REFINE`` times. That detail is
     the coarser of the target's octree cell and ``DETAIL_SPACINGS`` times the median point
-    ``spacing`` (fit frame): points a spacing apart show nothing finer than two spacings, so sparse clouds are never
-    split however fine the octree. Noisy points (not ``exact``) never: their target's bumps are noise
-    (bunny and cow, 20k points, 0.5% noise, split once: CD +1% / +3%). IMLS and shell targets never:
-    their field follows the grid.
+    ``spacing`` (fit frame): points a spacing apart show nothing finer than two spacings, so sparse
+    clouds are never split however fine the octree. Noisy points (not ``exact``) never: their
+    target's bumps are noise (bunny and cow, 20k points, 0.5% noise, split once: CD +1% / +3%). IMLS
+    and shell targets never: their field follows the grid.
 
     The grid's flat faces then no longer cut the chords of the detail the target holds. The
     measurements: beside ``DETAIL_SPACINGS`` and ``MAX_REFINE`` in :mod:`~voro3d.pointcloud.tuning`.

@@ -101,7 +101,8 @@ MAX_REFINE = 2
 # the faces, at 5k more than Poisson's. As landed, split once with the pieces at creases kept
 # (snapping.CREASE_DEGREES; benchmarks/results/pointcloud.md, 2026-12-05): NC 0.9852 / 0.9821 / 0.9835 /
 # 0.8993 against Open3D's 0.9855 / 0.9797 / 0.9641 / 0.9019, faces 85k / 47k / 99k / 49k, seconds a cloud
-# within run-to-run noise (clean 100k 9.7 -> 9.2, outliers 7.9 -> 8.3); the 38 dev meshes at clean 100k NC 0.9822 -> 0.9855, CD 0.6547 -> 0.6513 (pointcloud_dense38.md).
+# within run-to-run noise (clean 100k 9.7 -> 9.2, outliers 7.9 -> 8.3); the 38 dev meshes at clean 100k
+# NC 0.9822 -> 0.9855, CD 0.6547 -> 0.6513 (pointcloud_dense38.md).
 DETAIL_SPACINGS = 2.0
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
