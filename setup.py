@@ -22,7 +22,8 @@ setup(
         ),
         Pybind11Extension(
             "voro3d._fitkernel",
-            ["src/voro3d_fitkernel.cpp", "src/voro3d_winding.cpp", "src/voro3d_filter.cpp"],
+            ["src/voro3d_fitkernel.cpp", "src/voro3d_winding.cpp", "src/voro3d_filter.cpp",
+             "src/voro3d_imls.cpp"],
             depends=["src/voro3d_parallel.h"],
             cxx_std=17,
             extra_compile_args=["-O3", "-pthread"],

@@ -539,11 +539,13 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
 
 void register_winding(py::module_& module);  // voro3d_winding.cpp
 void register_filter(py::module_& module);   // voro3d_filter.cpp
+void register_imls(py::module_& module);     // voro3d_imls.cpp
 
 PYBIND11_MODULE(_fitkernel, module) {
-  module.doc() = "The VoroMesh fit's inner step on CPU: VoroLoss and its gradient in one threaded pass; point winding numbers; bilateral normal filtering.";
+  module.doc() = "The VoroMesh fit's inner step on CPU: VoroLoss and its gradient in one threaded pass; point winding numbers; bilateral normal filtering; the IMLS field.";
   register_winding(module);
   register_filter(module);
+  register_imls(module);
   module.def("voroloss", &voroloss, py::arg("samples"), py::arg("generators"), py::arg("candidates"),
              py::arg("grad") = py::none(), py::arg("threads") = 1,
              R"doc(VoroLoss of samples over their candidate generators, and optionally its gradient.

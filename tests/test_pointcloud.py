@@ -41,6 +41,42 @@ def test_imls_is_the_signed_distance_to_a_plane():
     assert np.allclose(gradient, [0.0, 0.0, 1.0])
 
 
+def test_the_compiled_imls_field_matches_its_formula_on_any_thread_count():
+    from scipy.spatial import cKDTree
+
+    from voro3d import _fitkernel
+
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(500, 3))
+    normals = rng.normal(size=(500, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    widths = rng.uniform(0.2, 0.5, 500)
+    queries = rng.normal(size=(300, 3)) * 1.5
+    distance, near = cKDTree(points).query(queries, k=12)
+    # The field written out in numpy: Gaussian weights relative to the largest, two robust passes.
+    h2 = widths[near] ** 2
+    log_weight = -distance**2 / h2
+    spatial = np.exp(log_weight - log_weight.max(axis=1, keepdims=True))
+    planes = np.einsum("qkj,qkj->qk", normals[near], queries[:, None] - points[near])
+    weight = spatial
+    f = (weight * planes).sum(1) / weight.sum(1)
+    for _ in range(2):
+        weight = spatial * np.exp(-(planes - f[:, None]) ** 2 / h2) + 1e-300
+        f = (weight * planes).sum(1) / weight.sum(1)
+    mean = np.einsum("qk,qkj->qj", weight, normals[near])
+    norm = np.linalg.norm(mean, axis=1)
+    one = _fitkernel.imls_field(points, normals, widths, queries, near, distance, robust_passes=2, threads=1)
+    np.testing.assert_allclose(one[0], f, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(one[1], mean / norm[:, None], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(one[2], norm / weight.sum(1), rtol=1e-10, atol=1e-12)
+    three = _fitkernel.imls_field(points, normals, widths, queries, near, distance, robust_passes=2, threads=3)
+    assert all(np.array_equal(a, b) for a, b in zip(one, three))
+    with pytest.raises(ValueError, match="outside"):
+        _fitkernel.imls_field(points, normals, widths, queries, near + 500, distance, robust_passes=2)
+    with pytest.raises(ValueError, match="neighbour's shape"):
+        _fitkernel.imls_field(points, normals, widths, queries, near, distance[:, :5], robust_passes=2)
+
+
 def test_imls_agreement_is_low_between_the_sides_of_a_thin_wall():
     """One plane's normals agree (1); a wall of two sides 0.02 apart, kernel 0.05, cancels."""
     rng = np.random.default_rng(0)

@@ -209,34 +209,24 @@ def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOUR
     """
     from scipy.spatial import cKDTree
 
+    from .. import _fitkernel
+    from .._system import available_cpus
     from ..queries import spatial_order
 
+    points, normals, widths = (np.ascontiguousarray(a, np.float64) for a in (points, normals, widths))
     tree = cKDTree(points) if tree is None else tree
     k = min(k, points.shape[0])
     value = np.empty(queries.shape[0])
     gradient = np.empty((queries.shape[0], 3))
     length = np.empty(queries.shape[0])
-    # Blocks of nearby queries share kd-tree nodes and gathered rows (spatial_order).
+    # Blocks of nearby queries share kd-tree nodes (spatial_order); the field itself is compiled.
     order = spatial_order(queries)
     for start in range(0, queries.shape[0], block):
         rows = order[start:start + block]
         x = queries[rows]
-        distance, neighbour = tree.query(x, k=k, workers=-1)
-        h2 = widths[neighbour] ** 2
-        log_weight = -(distance**2) / h2
-        # Relative to the largest weight, so that far queries do not underflow to 0/0.
-        spatial = np.exp(log_weight - log_weight.max(axis=1, keepdims=True))
-        planes = np.einsum("qkj,qkj->qk", normals[neighbour], x[:, None, :] - points[neighbour])
-        weight = spatial
-        f = np.einsum("qk,qk->q", weight, planes) / weight.sum(axis=1)
-        for _ in range(ROBUST_PASSES):
-            weight = spatial * np.exp(-((planes - f[:, None]) ** 2) / h2) + 1e-300
-            f = np.einsum("qk,qk->q", weight, planes) / weight.sum(axis=1)
-        value[rows] = f
-        mean = np.einsum("qk,qkj->qj", weight, normals[neighbour])
-        norm = np.linalg.norm(mean, axis=1)
-        gradient[rows] = mean / np.maximum(norm, 1e-12)[:, None]
-        length[rows] = norm / weight.sum(axis=1)
+        distance, neighbour = (found.reshape(len(rows), k) for found in tree.query(x, k=k, workers=-1))
+        value[rows], gradient[rows], length[rows] = _fitkernel.imls_field(
+            points, normals, widths, x, neighbour, distance, robust_passes=ROBUST_PASSES, threads=available_cpus())
     return value, gradient, length
 
 
