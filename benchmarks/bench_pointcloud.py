@@ -9,8 +9,8 @@ missing. On each cloud:
   target surface, fit), timed with its split, and ``cloud_mesh`` (extraction, clean, fit to the
   target), as ``voro3d.reconstruct`` returns it.
 * Poisson, as a user of Open3D would run it: statistical outlier removal (20 neighbours, 2
-  deviations), normals (30 neighbours), ``orient_normals_consistent_tangent_plane(30)``, screened
-  Poisson at depth 7 and 8, the one with the lower CD per shape (its own pipeline time).
+  deviations), normals (30 neighbours), ``orient_normals_consistent_tangent_plane(30)`` (``--orient-neighbours``),
+  screened Poisson at depth 7 and 8, the one with the lower CD per shape (its own pipeline time).
 
 CD x1e5, F1 at 0.003 and NC against the mesh (NDC frame, 100k points); VoroMesh meshes are also
 checked closed, manifold, oriented with no crossing triangles (``check_watertight``), and their
@@ -66,6 +66,10 @@ COLOURED = "clean 20k"
 PICTURED = ("organic_bunny.off", "cad_fandisk.obj")
 # Seconds given to Open3D's normal orientation before the baseline falls back to ours.
 ORIENT_TIMEOUT = 120
+# Neighbours of Open3D's tangent-plane orientation (--orient-neighbours): the stored tables' 30; issue
+# 24's pipeline used 16, on organic clouds 0.8x the time (bunny at 10^5 points 7.9 -> 6.6 s), on CAD
+# parts as slow (fandisk at 10^5 points: 437 s).
+ORIENT_NEIGHBOURS = 30
 PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views")
 
 
@@ -165,7 +169,7 @@ def _tangent_plane_normals(points, normals, queue):
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals)
-    cloud.orient_normals_consistent_tangent_plane(30)
+    cloud.orient_normals_consistent_tangent_plane(ORIENT_NEIGHBOURS)
     queue.put(np.asarray(cloud.normals))
 
 
@@ -279,8 +283,6 @@ def _colour_error(mesh, source, low, high):
 
 
 def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=True, with_alpha_wrap=False):
-    import open3d as o3d
-
     from voro3d.io import mesh_arrays, save_mesh
     from voro3d.metrics import evaluate
     from voro3d.pointcloud import cloud_mesh, colored_mesh, reconstruct_points
@@ -404,7 +406,8 @@ def write(out: Path, meta, rows, scans):
              f"{'merged runs, ' if len(runs) > 1 else ''}{loads})", "",
              f"Clouds without normals sampled from {len({r['shape'] for r in rows})} dev meshes. VoroMesh: "
              f"`voro3d.pointcloud.reconstruct_points(points, grid={meta['grid']})`, then `cloud_mesh`. Poisson: Open3D statistical "
-             "outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation (30; after "
+             f"outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation "
+             f"({meta.get('orient_neighbours', 30)} neighbours; after "
              f"{ORIENT_TIMEOUT} s the signs of voro3d's normals instead, marked * per shape), screened Poisson "
              "depth 7 or 8, the lower CD per shape. CD x1e5, F1 at 0.003, NC against the mesh (NDC frame, 100k "
              "points). *closed*: VoroMesh meshes checked closed, manifold, oriented, no crossing triangles (exact); "
@@ -573,6 +576,10 @@ def _runs(meta) -> list:
 
 def merge(sources, out: Path, folder: Path):
     runs = [json.loads(Path(source).read_text()) for source in sources]
+    # A --no-poisson run has no baseline of its own and merges with any.
+    baselines = {run["meta"].get("orient_neighbours", 30) for run in runs if not run["meta"].get("no_poisson")}
+    if len(baselines) > 1:
+        raise SystemExit(f"the runs oriented Open3D's normals with {sorted(baselines)} neighbours: one baseline only")
     rows = {}
     for r in (r for run in runs for r in run["rows"]):
         key = (r["shape"], r["condition"])
@@ -586,7 +593,7 @@ def merge(sources, out: Path, folder: Path):
     for run in runs:
         for entry in _runs(run["meta"]):
             listed.setdefault(entry["date"], entry)
-    meta = dict(runs[0]["meta"], runs=list(listed.values()))
+    meta = dict(runs[0]["meta"], runs=list(listed.values()), orient_neighbours=min(baselines, default=30))
     rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
     scans = [scans[k] for k in sorted(scans)]
     write(out, meta, rows, scans)
@@ -595,6 +602,7 @@ def merge(sources, out: Path, folder: Path):
 
 
 def main():
+    global ORIENT_NEIGHBOURS  # --orient-neighbours; read by the forked orientation child
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=Path, default=SHARED / "dev" if (SHARED / "dev").is_dir() else None)
     parser.add_argument("--shapes", nargs="*", help="file names in --folder (default: all)")
@@ -602,6 +610,8 @@ def main():
     parser.add_argument("--grid", default="64", help="VoroMesh grid, or auto")
     parser.add_argument("--scans", action="store_true", help="also the real scans in ../shared/data/scans")
     parser.add_argument("--no-shapes", action="store_true", help="scans only")
+    parser.add_argument("--orient-neighbours", type=int, default=ORIENT_NEIGHBOURS,
+                        help=f"neighbours of Open3D's tangent-plane orientation, default {ORIENT_NEIGHBOURS}")
     parser.add_argument("--no-poisson", action="store_true", help="VoroMesh only (Open3D's tangent-plane orientation "
                         "can take minutes at 10^5 points)")
     parser.add_argument("--alpha-wrap", action="store_true", help="also CGAL's alpha_wrap_3 (alpha = diagonal / 60, "
@@ -619,6 +629,7 @@ def main():
     args = parser.parse_args()
     import multiprocessing
 
+    ORIENT_NEIGHBOURS = args.orient_neighbours
     if args.merge:
         merge(args.merge, args.out, args.folder)
         return
@@ -645,7 +656,8 @@ def main():
                 load_before=load(), grid=args.grid, shell_depth=args.shell_depth or "default",
                 bridge_gap="default" if args.bridge_gap is None else args.bridge_gap,
                 hole_level="default" if args.hole_level is None else args.hole_level,
-                dense_spacings="default" if args.dense_spacings is None else args.dense_spacings)
+                dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
+                orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]
