@@ -38,7 +38,9 @@ __all__ = ["PoissonHelper", "PoissonSurface", "poisson_depth", "poisson_helper",
 # Octree levels per grid: the Poisson mesh is about four times finer than the VoroMesh grid, so
 # its chord error stays well under a voxel (depth 7 and 8 measured within 4% CD of each other).
 # Noisy points keep it too: depth 7 on 20k points with 0.5% noise, grid 64 (9 of the 12 benchmark
-# meshes, 2026-12-04) took 0.4-0.8x the time but CD +1-21% (+9% mean), NC -0.003 to -0.011.
+# meshes, 2026-12-04) took 0.4-0.8x the time but CD +1-21% (+9% mean), NC -0.003 to -0.011; so do
+# sparse ones: depth 7 on the 12 benchmark meshes' clean 5k clouds, the whole call 0.90x the time,
+# mean CD 2.589 -> 2.769 (thingi32_252119 16.3 -> 18.5), NC 0.9466 -> 0.9460 (2026-12-05).
 MIN_DEPTH, MAX_DEPTH = 6, 10
 # The cube Poisson solves in is this many times the points' longest side (Open3D's default ``scale``),
 # passed to it and read back by the box caps (:func:`_octree_box`).
