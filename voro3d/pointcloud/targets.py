@@ -67,7 +67,10 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
             # (Building it beside the solve, in a second process, lost: on this 2-CPU machine a busy
             # second process halves the first's speed, Open3D's solve of 5k points 0.9 -> 1.9 s beside
             # a pure-Python loop. Refused 3-view scans gained 1.5 s, bunny 8.8 -> 7.3 s; kept ones lost
-            # 1 s, cow 5k 2.6 -> 3.4 s; 2026-12-05.)
+            # 1 s, cow 5k 2.6 -> 3.4 s; 2026-12-05. Nor does foreseeing the refusal with a coarse solve:
+            # on 59 Poisson targets of the 12 benchmark meshes (3 and 6 views, a third missing, 5k,
+            # 1% noise), depth 6 on 6000 of the points took 0.28-0.65 s a cloud, 24.5 s in all, to
+            # spare the 15.2 s of the 6 refused solves, and refused one kept (homer from 3 views).)
             target = None
         else:
             target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
