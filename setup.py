@@ -24,7 +24,7 @@ setup(
             "voro3d._fitkernel",
             ["src/voro3d_fitkernel.cpp", "src/voro3d_winding.cpp", "src/voro3d_filter.cpp",
              "src/voro3d_imls.cpp"],
-            depends=["src/voro3d_parallel.h"],
+            depends=["src/voro3d_parallel.h", "src/voro3d_checks.h"],
             cxx_std=17,
             extra_compile_args=["-O3", "-pthread"],
             extra_link_args=["-pthread"],

@@ -1,5 +1,5 @@
-// Argument checks shared by the CGAL extension's functions: numpy arrays in, ValueError or
-// TypeError naming the argument out.
+// Argument checks shared by the extensions' functions: numpy arrays in, ValueError or TypeError
+// naming the argument out.
 #pragma once
 
 #include <pybind11/numpy.h>

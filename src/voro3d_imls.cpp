@@ -7,6 +7,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include "voro3d_checks.h"
 #include "voro3d_parallel.h"
 
 #include <algorithm>
@@ -25,18 +26,12 @@ constexpr std::int64_t kQueryBlock = 512;
 using Doubles = py::array_t<double, py::array::c_style | py::array::forcecast>;
 using Indices = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>;
 
-void check_rows(const Doubles& array, const char* name, std::int64_t columns) {
-  if (array.ndim() != 2 || array.shape(1) != columns) {
-    throw py::value_error(std::string(name) + " must have shape (m, " + std::to_string(columns) + ")");
-  }
-}
-
 std::tuple<py::array_t<double>, py::array_t<double>, py::array_t<double>> imls_field(
     const Doubles& points, const Doubles& normals, const Doubles& widths, const Doubles& queries,
     const Indices& neighbour, const Doubles& distance, int robust_passes, int threads) {
-  check_rows(points, "points", 3);
-  check_rows(normals, "normals", 3);
-  check_rows(queries, "queries", 3);
+  voro3d::check_shape(points, "points", 3, "n");
+  voro3d::check_shape(normals, "normals", 3, "n");
+  voro3d::check_shape(queries, "queries", 3, "q");
   const std::int64_t n = points.shape(0), q = queries.shape(0);
   if (normals.shape(0) != n || widths.ndim() != 1 || widths.shape(0) != n) {
     throw py::value_error("normals and widths must have one row per point");

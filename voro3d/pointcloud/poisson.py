@@ -190,10 +190,9 @@ def _solve(points, normals, depth: int, scale: float) -> tuple[np.ndarray, np.nd
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals)
     # One thread: Open3D's parallel solver sums in varying order and the surface then moves
-    # by float rounding from run to run; seeded runs must repeat exactly. It also crashes at
-    # random: solved on every core when no seed was given (6 dev clouds, the call 0.86x the
-    # time), our test suite died in it once (SIGSEGV in libOpen3D, 2026-12-05; Open3D issues
-    # 6828 and 7229).
+    # by float rounding from run to run; seeded runs must repeat exactly. Threaded, it also
+    # crashes at random: tried for runs without a seed (6 dev clouds, the call 0.86x the time),
+    # it killed our test suite once (SIGSEGV in libOpen3D, 2026-12-05; Open3D issues 6828, 7229).
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, scale=scale,
                                                                             n_threads=1)
