@@ -622,6 +622,8 @@ def main():
                         "bridges), the ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--hole-level", type=float, help="HOLE_LEVEL for this run (0: each cloud's own winding "
                         "level), the ablation beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--poisson-escape", help="MAX_POISSON_ESCAPE for this run (share of the diagonal, or none: "
+                        "never refused), the ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
@@ -643,6 +645,8 @@ def main():
         surface_module.MAX_BRIDGE_GAP = args.bridge_gap
     if args.hole_level is not None:
         targets_module.HOLE_LEVEL = args.hole_level
+    if args.poisson_escape is not None:
+        targets_module.MAX_POISSON_ESCAPE = np.inf if args.poisson_escape == "none" else float(args.poisson_escape)
     if args.dense_spacings is not None:
         reconstruct_module.DENSE_SPACINGS = args.dense_spacings
     from voro3d.io import MESH_SUFFIXES, load_mesh
@@ -656,6 +660,7 @@ def main():
                 load_before=load(), grid=args.grid, shell_depth=args.shell_depth or "default",
                 bridge_gap="default" if args.bridge_gap is None else args.bridge_gap,
                 hole_level="default" if args.hole_level is None else args.hole_level,
+                poisson_escape=args.poisson_escape or "default",
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)

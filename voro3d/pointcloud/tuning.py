@@ -164,6 +164,11 @@ HOLE_LEVEL = 0.42
 # 1275-1278 gone, the rest unchanged); six views read closed (Poisson): unchanged. The real open
 # scans become plates and shells (a flat map of France scanned from one side: a block to the box
 # before). Rerun: bench_pointcloud.py --shell-depth.
+# Closed clouds keep no limit: the 20 clouds of the 38 dev meshes whose Poisson target is refused
+# (MAX_POISSON_ESCAPE's ablation below), limited at this depth too (2026-12-05): mean CD 65.9 ->
+# 89.7, NC 0.881 -> 0.857, F1 0.634 -> 0.572, lower CD on 4 (the lid abc_00000007 from 3 views,
+# whose points all lie on its top and read a level of 0.2505, 357 -> 83; abc_00000006 70 -> 54),
+# and up to 9x higher on the rest (cow 7.4 -> 70, bunny 11 -> 92): their holes are closed, not cut.
 SHELL_DEPTH = 0.125
 # Pieces of an open cloud's solid (or of the offset shell) closer than this, fit-frame units (about
 # 12% of the diagonal), are joined by a rod (fields.bridge): patches one viewpoint sees apart (a
@@ -175,7 +180,16 @@ SHELL_DEPTH = 0.125
 # are never bridged: two objects side by side stay two. Rerun: bench_pointcloud.py --bridge-gap 0.
 MAX_BRIDGE_GAP = 0.25
 # A Poisson surface that runs further than this share of the diagonal out of the points' box is
-# refused (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`).
+# refused (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`). Ablation on all 38 dev meshes,
+# grid 64 (2026-12-05): it fires on 17 of the 3-view range scans, 1 of the 6-view ones and 2 with a
+# third missing. Off (Poisson kept), mean CD over the 38 from 3 views 55.5 -> 537.8, NC 0.889 ->
+# 0.868, F1 0.644 -> 0.593 (fandisk 44 -> 4406, bunny 11 -> 2045, cheburashka 16 -> 3753; the lid
+# abc_00000007 alone gains, 357 -> 5.0); 6 views 2.6 -> 2.7 (the lid's shell 2.27, Poisson 8.26); a
+# third missing 345.9 -> 338.9, NC 0.8865 -> 0.8915 (thingi32_75665 355 -> 82; bumpy-cube 105 ->
+# 112, NC 0.81 -> 0.93). Choosing instead the target nearer the points both ways (sheet_if_closer's
+# misfit, Poisson's surface cut to the fit cube) would keep IMLS on all 15 of the 3-view scans
+# measured, the lid included (45.8 spacings against 9.2: its flaps stay inside the cube). Rerun:
+# bench_pointcloud.py --no-poisson --poisson-escape none --conditions "range scan 3 views" ...
 MAX_POISSON_ESCAPE = 0.08
 # With plan hull "on", a target's solid more than this many nodes of its grid (a VoroMesh voxel at
 # FIELD_REFINEMENT 2) outside the points' convex hull is cut away (voro3d.pointcloud.hull). On and off,
