@@ -43,11 +43,15 @@ inline py::array as_array(const py::handle& value, const char* name, const std::
   return array;
 }
 
-inline void check_shape(const py::array& array, const char* name, py::ssize_t width, const char* letter) {
-  if (array.ndim() != 2 || array.shape(1) != width) {
-    throw py::value_error(std::string(name) + " must have shape (" + letter + ", " + std::to_string(width) + "), got " +
-                          shape_of(array));
+// A 2-d array of `columns` columns (at least -columns where negative), else ValueError citing `expected`.
+inline void check_columns(const py::array& array, const char* name, const std::string& expected, py::ssize_t columns) {
+  if (array.ndim() != 2 || (columns > 0 && array.shape(1) != columns) || (columns < 0 && array.shape(1) < -columns)) {
+    throw py::value_error(std::string(name) + " must have shape " + expected + ", got " + shape_of(array));
   }
+}
+
+inline void check_shape(const py::array& array, const char* name, py::ssize_t width, const char* letter) {
+  check_columns(array, name, "(" + std::string(letter) + ", " + std::to_string(width) + ")", width);
 }
 
 // Finite float64 (n, 3) coordinates with at least `min_rows` rows.

@@ -8,6 +8,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include "voro3d_checks.h"
 #include "voro3d_parallel.h"
 
 #include <algorithm>
@@ -27,7 +28,7 @@ using Indices = py::array_t<std::int64_t, py::array::c_style | py::array::forcec
 
 py::array_t<float> bilateral_normals(const Floats& normals, const Indices& near, const Floats& spatial,
                                      double normal_width, int passes, int threads) {
-  if (normals.ndim() != 2 || normals.shape(1) != 3) throw py::value_error("normals must have shape (t, 3)");
+  voro3d::check_shape(normals, "normals", 3, "t");
   const std::int64_t t = normals.shape(0);
   if (near.ndim() != 2 || near.shape(0) != t) throw py::value_error("near must have shape (t, k) like normals' t");
   const std::int64_t k = near.shape(1);

@@ -15,6 +15,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include "voro3d_checks.h"
 #include "voro3d_parallel.h"
 
 #include <algorithm>
@@ -45,15 +46,8 @@ constexpr std::int64_t kBlock = 1024;
 constexpr double kFixedScale = 1099511627776.0;  // 2^40
 constexpr double kTermLimit = 4096.0;            // 2^12
 
-std::string shape_of(const py::array& array) {
-  std::string text = "(";
-  for (py::ssize_t axis = 0; axis < array.ndim(); ++axis) {
-    text += (axis ? ", " : "") + std::to_string(array.shape(axis));
-  }
-  return text + (array.ndim() == 1 ? ",)" : ")");
-}
-
-py::array as_array(const py::object& value, const char* name) {
+// An ndarray as it is (no conversion: the kernels take float32 or float64 as given), else TypeError.
+py::array numpy_array(const py::object& value, const char* name) {
   if (!py::isinstance<py::array>(value)) {
     throw py::type_error(std::string(name) + " must be a numpy array, got " +
                          py::str(py::type::of(value).attr("__name__")).cast<std::string>());
@@ -61,11 +55,8 @@ py::array as_array(const py::object& value, const char* name) {
   return py::reinterpret_borrow<py::array>(value);
 }
 
-void check_shape(const py::array& array, const char* name, const char* expected, py::ssize_t columns) {
-  if (array.ndim() != 2 || (columns > 0 && array.shape(1) != columns) || (columns < 0 && array.shape(1) < -columns)) {
-    throw py::value_error(std::string(name) + " must have shape " + expected + ", got " + shape_of(array));
-  }
-}
+using voro3d::check_columns;
+using voro3d::shape_of;
 
 std::string dtype_name(const py::array& array) { return py::str(array.dtype()).cast<std::string>(); }
 
@@ -115,7 +106,7 @@ double voroloss_impl(const py::array& samples_in, const py::array& generators_in
   const bool want_grad = !grad_in.is_none();
   py::array_t<Real> grad_array;
   if (want_grad) {
-    py::array grad = as_array(grad_in, "grad");
+    py::array grad = numpy_array(grad_in, "grad");
     if (!py::isinstance<py::array_t<Real>>(grad)) {
       throw py::type_error("grad must have the dtype of generators (" + dtype_name(generators_in) + "), got " +
                            dtype_name(grad));
@@ -235,12 +226,12 @@ double voroloss_impl(const py::array& samples_in, const py::array& generators_in
 
 double voroloss(const py::object& samples_in, const py::object& generators_in, const py::object& candidates_in,
                 const py::object& grad_in, int threads) {
-  py::array samples = as_array(samples_in, "samples");
-  py::array generators = as_array(generators_in, "generators");
-  py::array candidates = as_array(candidates_in, "candidates");
-  check_shape(samples, "samples", "(m, 3)", 3);
-  check_shape(generators, "generators", "(n, 3)", 3);
-  check_shape(candidates, "candidates", "(m, c) with c >= 2", -2);
+  py::array samples = numpy_array(samples_in, "samples");
+  py::array generators = numpy_array(generators_in, "generators");
+  py::array candidates = numpy_array(candidates_in, "candidates");
+  check_columns(samples, "samples", "(m, 3)", 3);
+  check_columns(generators, "generators", "(n, 3)", 3);
+  check_columns(candidates, "candidates", "(m, c) with c >= 2", -2);
   if (samples.shape(0) == 0) throw py::value_error("samples must hold at least 1 point, got 0");
   if (generators.shape(0) < 2) {
     throw py::value_error("generators must hold at least 2 points, got " + std::to_string(generators.shape(0)));
@@ -482,10 +473,10 @@ py::array_t<std::int32_t> nearest_impl(const py::array& samples_in, const py::ar
 py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const py::object& generators_in,
                                              std::int64_t k, double cell, const py::object& anchor_in, int threads,
                                              const py::object& out_in, const py::object& rows_in) {
-  py::array samples = as_array(samples_in, "samples");
-  py::array generators = as_array(generators_in, "generators");
-  check_shape(samples, "samples", "(m, 3)", 3);
-  check_shape(generators, "generators", "(n, 3)", 3);
+  py::array samples = numpy_array(samples_in, "samples");
+  py::array generators = numpy_array(generators_in, "generators");
+  check_columns(samples, "samples", "(m, 3)", 3);
+  check_columns(generators, "generators", "(n, 3)", 3);
   const std::int64_t m = samples.shape(0);
   const std::int64_t n = generators.shape(0);
   if (k < 1 || k > n || k > std::numeric_limits<std::int32_t>::max()) {
@@ -506,14 +497,14 @@ py::array_t<std::int32_t> nearest_generators(const py::object& samples_in, const
   if (out_in.is_none()) {
     result = py::array_t<std::int32_t>({m, k});
   } else {
-    py::array out = as_array(out_in, "out");
+    py::array out = numpy_array(out_in, "out");
     if (!py::isinstance<py::array_t<std::int32_t>>(out)) throw py::type_error("out must be int32, got dtype " + dtype_name(out));
     if (out.ndim() != 2 || out.shape(1) != k) {
       throw py::value_error("out must have shape (rows, " + std::to_string(k) + "), got " + shape_of(out));
     }
     if (!out.writeable() || !(out.flags() & py::array::c_style)) throw py::value_error("out must be writeable and C-contiguous");
     result = py::reinterpret_borrow<py::array_t<std::int32_t>>(out);
-    py::array row_array = as_array(rows_in, "rows");
+    py::array row_array = numpy_array(rows_in, "rows");
     if (row_array.ndim() != 1 || row_array.shape(0) != m) {
       throw py::value_error("rows must have shape (" + std::to_string(m) + ",) like samples, got " + shape_of(row_array));
     }

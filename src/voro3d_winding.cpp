@@ -8,6 +8,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include "voro3d_checks.h"
 #include "voro3d_parallel.h"
 
 #include <algorithm>
@@ -165,10 +166,12 @@ double winding_at(const Tree& tree, const double* q, double beta) {
 
 using Points = py::array_t<double, py::array::c_style | py::array::forcecast>;
 
+// (n, 3) with `rows` rows where it is not negative.
 void check_rows(const Points& array, const char* name, py::ssize_t rows) {
-  if (array.ndim() != 2 || array.shape(1) != 3 || (rows >= 0 && array.shape(0) != rows)) {
-    throw py::value_error(std::string(name) + " must have shape (" + (rows >= 0 ? std::to_string(rows) : "n") +
-                          ", 3), got ndim " + std::to_string(array.ndim()));
+  voro3d::check_shape(array, name, 3, "n");
+  if (rows >= 0 && array.shape(0) != rows) {
+    throw py::value_error(std::string(name) + " must have shape (" + std::to_string(rows) + ", 3), got " +
+                          voro3d::shape_of(array));
   }
 }
 
