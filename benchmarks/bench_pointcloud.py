@@ -356,10 +356,7 @@ def run_scans(folder: Path, grid, picture_dir):
         row["kept_points"] = int(kept.sum())
         start = time.perf_counter()
         try:
-            from voro3d.reconstruction import _oriented
-
-            checked_points, checked_normals = _oriented(points, normals)
-            shape, target, info = reconstruct_points(checked_points, checked_normals, grid=grid)
+            shape, target, info = reconstruct_points(points, normals, grid=grid)
             mesh = cloud_mesh(shape, target)
             report = check_watertight(mesh)
             row["voromesh"] = dict(_scan_scores(mesh, points, normals, usable, diagonal, kept),

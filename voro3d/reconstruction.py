@@ -320,16 +320,13 @@ def _read(geometry):
     if points.shape[0] < MIN_POINTS:
         repeats = f" ({given - points.shape[0]} duplicated points merged)" if given > points.shape[0] else ""
         raise ValueError(f"point cloud has {points.shape[0]} distinct points{repeats}; at least {MIN_POINTS} are needed")
-    return "points", (*_oriented(points, normals), colors)
+    _check_not_flat(points)
+    return "points", (points, normals, colors)
 
 
-def _oriented(points, normals):
+def _check_not_flat(points) -> None:
+    """Refuse points that all lie in one plane (or on one line): they enclose no volume."""
     centred = points - points.mean(axis=0)
     singular = np.linalg.svd(centred[:: max(1, points.shape[0] // 20000)], compute_uv=False)
     if singular[2] <= 1e-9 * singular[0]:
         raise ValueError("all points are coplanar (or collinear): a flat cloud encloses no volume")
-    if normals is None:
-        return points, None
-    from .pointcloud import repair_normals
-
-    return points, repair_normals(points, normals)

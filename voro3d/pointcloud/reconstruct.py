@@ -22,7 +22,7 @@ import numpy as np
 from ..queries import point_areas
 from ..snapping import NOISY_SMOOTHING
 from ..geometry import grid_voxel
-from .normals import estimate_normals, orient_normals, sign_disagreement
+from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement
 from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, outlier_neighbours
 from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
@@ -155,7 +155,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        measured; a cloud that fills a volume instead of sampling a surface is refused.
     2. The plan (:class:`~voro3d.pointcloud.plan.CloudPlan`): its fields left ``"auto"`` are
        settled from what steps 1-3 find, and the chosen plan is printed with ``progress``.
-       Normals: the given ones, checked (signs inconsistent between neighbours: re-oriented,
+       Normals: the given ones, checked (zero, NaN or inf ones taken from their neighbours,
+       :func:`~voro3d.pointcloud.normals.repair_normals`; signs inconsistent between neighbours: re-oriented,
        :func:`~voro3d.pointcloud.normals.orient_normals`; all inward: flipped), else estimated
        and oriented (:func:`estimate_normals`).
     3. On a noisy cloud (``plan.denoise``), IMLS (its kernel spans several noise deviations)
@@ -268,6 +269,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     start = time.perf_counter()
     n_points = points.shape[0]
     points, normals = merge_duplicates(points, normals)
+    if normals is not None:  # zero, NaN or inf ones (scanners write them) from their neighbours
+        normals = repair_normals(points, normals)
     # A dense cloud is reconstructed from a subset (see the docstring).
     distinct, subset = points.shape[0], analysis_subset(points.shape[0], fit_options.get("seed", 0))
     if subset is not None:
