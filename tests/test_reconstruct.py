@@ -134,6 +134,8 @@ def test_winding_number_inside_outside(torus_cloud):
     (np.c_[np.random.default_rng(0).random((500, 2)), np.zeros(500)], "coplanar"),
     (np.zeros((200, 2)), "shape"),
     (np.repeat(np.eye(4, 3), 50, axis=0), r"4 distinct points \(196 duplicated points merged\)"),
+    ([[0.0, 0.0, 0.0], [1.0, 2.0]], "geometry must be an Open3D point cloud or triangle mesh"),
+    ({"points": np.zeros((200, 3))}, "geometry must be .* got dict"),
 ])
 def test_bad_clouds(geometry, match):
     with pytest.raises(ValueError, match=match):
@@ -247,6 +249,28 @@ def test_reconstruct_points_repairs_zero_and_nan_normals_itself(torus_cloud):
         assert check_watertight(out).watertight
         chamfer.append(evaluate(out, mesh, n_samples=20000)["chamfer_x1e5"])
     assert chamfer[0] < 1.2 * chamfer[1]
+
+
+def test_georeferenced_coordinates_keep_their_precision(torus_cloud):
+    """A scan in map coordinates (x, y about 5e5 and 5e6 metres): Open3D's float32 queries, whose step
+    there is 0.5, are made about the object's centre. Before, CD 2.9 -> 4.2 and NC 0.995 -> 0.964."""
+    mesh, points, _ = torus_cloud
+    offset = np.array([5e5, 5e6, 100.0])
+    scores = []
+    for shift in (np.zeros(3), offset):
+        out = reconstruct(points + shift, **FAST)
+        assert check_watertight(out).watertight
+        moved_back = (np.asarray(out.vertices) - shift, np.asarray(out.triangles))
+        scores.append(evaluate(moved_back, mesh, n_samples=20000))
+    assert scores[1]["chamfer_x1e5"] < 1.1 * scores[0]["chamfer_x1e5"]
+    assert scores[1]["nc"] > scores[0]["nc"] - 0.003
+
+
+def test_a_vertices_triangles_pair_is_a_mesh():
+    torus = example_mesh("torus")
+    pair = (np.asarray(torus.vertices), np.asarray(torus.triangles))
+    out = reconstruct(pair, grid=16, steps=40)
+    assert check_watertight(out).watertight and evaluate(out, torus, n_samples=20000)["chamfer_x1e5"] < 50
 
 
 def test_objects_far_apart_each_get_their_own_grid():

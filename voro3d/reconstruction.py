@@ -48,8 +48,8 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     Parameters
     ----------
     geometry : open3d.geometry.PointCloud, open3d.geometry.TriangleMesh, their ``open3d.t``
-        versions, (n, 3) or (n, 6) float array (points, or points then normals), or a path
-        to a mesh or point-cloud file.
+        versions, a ``(vertices, triangles)`` pair, (n, 3) or (n, 6) float array (points, or
+        points then normals), or a path to a mesh or point-cloud file.
         Point clouds use their normals when they have them, checked (a few zero or NaN ones are
         repaired from their neighbours, signs that disagree between neighbours re-oriented,
         normals that all point inward flipped); otherwise normals are estimated and oriented.
@@ -261,7 +261,11 @@ def _check_fit(mesh, points, voxel: float, offset: float = 0.0) -> None:
                          "it balloons around the points instead of following them (normals that point every which way?)")
     # allow_open: welded, the vertices the extraction splits where cells touch along an edge only
     # read as a non-manifold edge, and a distance needs no inside.
-    distance = (float(np.median(InsideOutside(mesh, allow_open=True).unsigned_distance(points))) - offset) / voxel
+    # About the points' centre: Open3D's float32 distances would be 0.5 off at 5e6 (georeferenced scans).
+    centre = points.mean(axis=0)
+    vertices = np.asarray(mesh.vertices) - centre
+    distance = (float(np.median(InsideOutside((vertices, np.asarray(mesh.triangles)), allow_open=True)
+                                .unsigned_distance(points - centre))) - offset) / voxel
     if distance > MAX_MEDIAN_DISTANCE:
         raise ValueError(f"the reconstructed surface lies {distance:.1f} voxels from the median point: it does not follow "
                          "the points")
@@ -288,7 +292,7 @@ def _read(geometry):
         geometry = geometry.to_legacy()
     if isinstance(geometry, o3d.t.geometry.PointCloud):
         geometry = geometry.to_legacy()
-    if isinstance(geometry, o3d.geometry.TriangleMesh):
+    if isinstance(geometry, o3d.geometry.TriangleMesh) or (isinstance(geometry, tuple) and len(geometry) == 2):
         from .io import mesh_arrays
 
         return "mesh", mesh_arrays(geometry)
@@ -298,7 +302,11 @@ def _read(geometry):
         normals = np.asarray(geometry.normals) if geometry.has_normals() else None
         colors = np.asarray(geometry.colors) if geometry.has_colors() else None
     else:
-        array = np.asarray(geometry)
+        try:
+            array = np.asarray(geometry, np.float64)
+        except (TypeError, ValueError):
+            raise ValueError("geometry must be an Open3D point cloud or triangle mesh, a (vertices, triangles) pair, "
+                             f"an (n, 3) or (n, 6) array or a file path, got {type(geometry).__name__}") from None
         if array.ndim == 2 and array.shape[1] == 6:
             points, normals = array[:, :3], array[:, 3:]
         else:

@@ -171,7 +171,10 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float, fit: str 
     import open3d as o3d
     from scipy.sparse import coo_matrix
 
-    scene = raycasting_scene(*surface)
+    # Open3D computes in float32, whose step is 0.5 at 5e6 (georeferenced scans): it is queried
+    # about the surface's centre, the vertices and their checks staying in float64 where they are.
+    origin = 0.5 * (surface[0].min(axis=0) + surface[0].max(axis=0))
+    scene = raycasting_scene(surface[0] - origin, surface[1])
     planes = face_normals(*surface)
     face_points, iterations, damping = (FACE_POINTS, ITERATIONS, DAMPING) if fit == "faces" \
         else (FACE_POINTS[:0], 1, 1.0)
@@ -190,8 +193,8 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float, fit: str 
     for step in range(iterations):
         points = np.vstack([fitted, np.einsum("bk,tkd->tbd", face_points, fitted[triangles]).reshape(-1, 3)])
         if step % QUERY_EVERY == 0:
-            answer = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
-            nearest = answer["points"].numpy().astype(np.float64)
+            answer = scene.compute_closest_points(o3d.core.Tensor((points - origin).astype(np.float32)))
+            nearest = answer["points"].numpy().astype(np.float64) + origin
             normal = planes[answer["primitive_ids"].numpy().astype(np.int64)]
             residual = nearest - points
         else:
