@@ -231,7 +231,13 @@ MAX_FIELD_RESOLUTION = 160
 # the lid from 6 views and bumpy-cube from 1 view try the shell (1.80, 4.82); of the 38 dev meshes
 # at 10^5 clean points, abc_00000001 alone is past the first gate, at 0.93 (its shell, were it tried,
 # misfits by 2.59 spacings against the 0.74 it would need to win: a node thick, at this spacing).
-# (The lid passes SHEET_POINTS_GATE by a hair: 0.150 spacings.)
+# (The lid passes SHEET_POINTS_GATE by a hair: 0.150 spacings.) Of those, the 1-view bumpy-cube is a
+# misfire: a solid seen from one side, its shell CD / NC / F1 1350 / 0.740 / 0.036 against the IMLS
+# target's 803 / 0.778 / 0.431. Two rules that would keep the shell from one-sided scans each lose a
+# lid (2026-12-05, bench_thin_walls at 5k and 20k points): the shell only where some points span a
+# wall (wall_points: none on the 1-view cube, 54% on the lid from 6 views) drops the lid at 5k, whose
+# walls 1.5 spacings thick read as none (CD 14.0 -> 445); only for clouds that read closed drops the
+# lid at 20k, whose signs are 37% wrong and its level open (CD 5.1 -> 114).
 SHEET_POINTS_GATE = 0.15
 SHEET_SURFACE_GATE = 1.0
 SHEET_WIN = 0.65
