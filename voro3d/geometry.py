@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["components", "face_area_vectors", "face_normals", "grid_voxel", "raycasting_scene", "smallest_angles",
+__all__ = ["centred_scene", "components", "face_area_vectors", "face_normals", "grid_voxel", "raycasting_scene", "smallest_angles",
            "split_triangles", "vertex_normals"]
 
 
@@ -31,6 +31,15 @@ def raycasting_scene(vertices: np.ndarray, triangles: np.ndarray):
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(triangles, np.uint32)))
     return scene
+
+
+def centred_scene(vertices: np.ndarray, triangles: np.ndarray):
+    """:func:`raycasting_scene` of the mesh moved by minus its bounding box's centre, and that centre
+    (3,): query it with points minus the centre. Open3D computes in float32, whose step is 0.5 at
+    5e6 (map coordinates); about the centre it is relative to the mesh's size."""
+    vertices = np.asarray(vertices, np.float64)
+    origin = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    return raycasting_scene(vertices - origin, triangles), origin
 
 
 def face_area_vectors(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ import numpy as np
 
 from ._validate import positive_int
 from .frames import ndc_frame
-from .geometry import face_area_vectors, face_normals, raycasting_scene, smallest_angles
+from .geometry import centred_scene, face_area_vectors, face_normals, smallest_angles
 from .io import mesh_arrays
 from .sampling import sample_surface
 
@@ -128,8 +128,8 @@ def triangle_quality(pred, gt, *, max_angle: float = 30.0, sliver_angle: float =
     normals = face_area_vectors(vertices, triangles)
     length = np.linalg.norm(normals, axis=1)
     gt_normals = face_normals(gt_vertices, gt_triangles)
-    scene = raycasting_scene(gt_vertices, gt_triangles)
-    nearest = scene.compute_closest_points(o3d.core.Tensor(corners.mean(axis=1).astype(np.float32)))
+    scene, origin = centred_scene(gt_vertices, gt_triangles)
+    nearest = scene.compute_closest_points(o3d.core.Tensor((corners.mean(axis=1) - origin).astype(np.float32)))
     truth = gt_normals[nearest["primitive_ids"].numpy().astype(np.int64)]
     cosine = np.abs(np.einsum("ij,ij->i", normals, truth)) / np.maximum(length, 1e-300)
     off = (length == 0) | (cosine < np.cos(np.radians(max_angle)))

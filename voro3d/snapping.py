@@ -62,7 +62,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .geometry import face_area_vectors as _normals, face_normals, raycasting_scene, smallest_angles, vertex_normals
+from .geometry import centred_scene, face_area_vectors as _normals, face_normals, smallest_angles, vertex_normals
 from .io import mesh_arrays
 from .watertight import self_intersections, signed_volume
 
@@ -171,10 +171,8 @@ def _least_squares_fit(surface, vertices, triangles, smoothing: float, fit: str 
     import open3d as o3d
     from scipy.sparse import coo_matrix
 
-    # Open3D computes in float32, whose step is 0.5 at 5e6 (georeferenced scans): it is queried
-    # about the surface's centre, the vertices and their checks staying in float64 where they are.
-    origin = 0.5 * (surface[0].min(axis=0) + surface[0].max(axis=0))
-    scene = raycasting_scene(surface[0] - origin, surface[1])
+    # About the surface's centre (map coordinates); the vertices and their checks stay in float64.
+    scene, origin = centred_scene(*surface)
     planes = face_normals(*surface)
     face_points, iterations, damping = (FACE_POINTS, ITERATIONS, DAMPING) if fit == "faces" \
         else (FACE_POINTS[:0], 1, 1.0)
