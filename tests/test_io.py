@@ -175,15 +175,18 @@ def test_load_points_errors(tmp_path):
     with pytest.raises(ValueError, match=r"\(n, 3\) or \(n, 6\)"):
         load_points(tmp_path / "four.npy")
     bad = np.zeros((5, 6))
-    bad[2, 4] = np.inf
+    bad[2, 4] = np.inf  # a normal: passed on, for the reconstruction to repair
     np.save(tmp_path / "inf.npy", bad)
+    assert np.isinf(np.asarray(load_points(tmp_path / "inf.npy").normals)[2, 1])
+    bad[2, 1] = np.nan  # a position
+    np.save(tmp_path / "nan.npy", bad)
     with pytest.raises(ValueError, match="NaN or inf"):
-        load_points(tmp_path / "inf.npy")
+        load_points(tmp_path / "nan.npy")
     with pytest.raises(ValueError, match="could not be read"):
         load_points(write(tmp_path / "junk.npy", "not numpy"))
     with pytest.raises(ValueError, match="could not be read"):
         load_points(write(tmp_path / "junk.pcd", "not a pcd"))
-    with pytest.raises(ValueError, match="could not be read"):
+    with pytest.raises(ValueError, match="empty.xyz holds no points"):
         load_points(write(tmp_path / "empty.xyz", ""))
     with pytest.raises(ValueError, match=r"readable formats are .*\.pwn"):
         load_points(write(tmp_path / "cloud.las", "binary"))

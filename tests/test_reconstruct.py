@@ -225,9 +225,9 @@ def test_repeated_points_are_merged(torus_cloud):
 def test_a_few_nan_normals_are_repaired_and_many_refused(torus_cloud):
     mesh, points, normals = torus_cloud
     broken = normals.copy()
-    broken[::200] = np.nan  # 0.5%
+    broken[::10] = np.nan  # 10%
     assert _torus_cd(np.hstack([points, broken]), mesh) < 1.2 * _torus_cd(np.hstack([points, normals]), mesh)
-    broken[::20] = 0.0  # 5%
+    broken[np.arange(len(broken)) % 5 < 3] = 0.0  # 60%
     with pytest.raises(ValueError, match="normals are zero, NaN or inf"):
         reconstruct(np.hstack([points, broken]), **FAST)
 
@@ -244,7 +244,7 @@ def test_reconstruct_points_repairs_zero_and_nan_normals_itself(torus_cloud):
     chamfer = []
     for given in (broken, normals):
         shape, target, info = reconstruct_points(points, given, grid=24, steps=60, seed=0)
-        assert info.normals.startswith("given")
+        assert info.normals == ("given, 54 repaired" if given is broken else "given")
         out = cloud_mesh(shape, target)
         assert check_watertight(out).watertight
         chamfer.append(evaluate(out, mesh, n_samples=20000)["chamfer_x1e5"])

@@ -221,7 +221,8 @@ def load_points(path):
     FileNotFoundError
         ``path`` does not exist.
     ValueError
-        The file could not be read, holds no points, has the wrong shape, or NaN/inf values.
+        The file could not be read, holds no points, has the wrong shape, or NaN/inf positions
+        (normals are passed as they are).
     """
     import open3d as o3d
 
@@ -234,10 +235,13 @@ def load_points(path):
             array = np.load(path, allow_pickle=False) if suffix == ".npy" else _text_points(path)
         except (ValueError, OSError, EOFError) as error:
             raise ValueError(f"{path} could not be read as {'a .npy array' if suffix == '.npy' else 'x y z lines'}: {error}") from None
-        if array.ndim != 2 or array.shape[1] not in (3, 6) or len(array) == 0:
+        if array.size == 0:
+            raise ValueError(f"{path} holds no points")
+        if array.ndim != 2 or array.shape[1] not in (3, 6):
             raise ValueError(f"{path} could not be read: it must hold an array of shape (n, 3) or (n, 6), got {array.shape}")
-        array = as_points(array.reshape(-1, 3), str(path)).reshape(-1, array.shape[1])
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(array[:, :3]))
+        # Normals pass as they are: zero or NaN ones (scanners write them) are repaired
+        # from their neighbours by the reconstruction, which names the problem when there are many.
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(as_points(array[:, :3], str(path))))
         if array.shape[1] == 6:
             cloud.normals = o3d.utility.Vector3dVector(array[:, 3:])
         return cloud
@@ -246,8 +250,6 @@ def load_points(path):
     if len(cloud.points) == 0:
         raise ValueError(f"{path} could not be read as a point cloud (corrupt or empty; formats: {', '.join(POINT_SUFFIXES)})")
     as_points(np.asarray(cloud.points), str(path))
-    if cloud.has_normals() and not np.isfinite(np.asarray(cloud.normals)).all():
-        raise ValueError(f"{path} holds NaN or inf normals")
     return cloud
 
 

@@ -57,8 +57,9 @@ class PointCloudInfo:
         Whether the fine-scale noise is over ``NOISY`` spacings.
     normals : str
         Where the normals came from: ``"estimated"`` or ``"given"``, then ``", re-oriented"`` when
-        the given signs disagreed between neighbours (``MAX_SIGN_DISAGREEMENT``) and ``", flipped"``
-        when they pointed inward.
+        the given signs disagreed between neighbours (``MAX_SIGN_DISAGREEMENT``), ``", N repaired"``
+        when N were zero, NaN or inf (taken from their neighbours) and ``", flipped"`` when they
+        pointed inward.
     level : float
         Winding level of the oriented points (:func:`~voro3d.pointcloud.surface.winding_level`,
         clipped to 0-0.5): over ``CLOSED_LEVEL`` they enclose a volume.
@@ -269,7 +270,9 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     start = time.perf_counter()
     n_points = points.shape[0]
     points, normals = merge_duplicates(points, normals)
+    repaired = 0
     if normals is not None:  # zero, NaN or inf ones (scanners write them) from their neighbours
+        repaired = int((~(np.linalg.norm(normals, axis=1) >= 1e-12)).sum())
         normals = repair_normals(points, normals)
     # A dense cloud is reconstructed from a subset (see the docstring).
     distinct, subset = points.shape[0], analysis_subset(points.shape[0], fit_options.get("seed", 0))
@@ -333,6 +336,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     seconds["normals"] += time.perf_counter() - start
     walls = "" if stats.walls is None or not stats.walls.any() else \
         f" ({stats.walls.sum():,} points, {stats.walls.mean():.1%}, span both sides of a thin wall: fitted on their nearer side)"
+    if repaired and normal_source.startswith("given"):
+        normal_source += f", {repaired:,} repaired"
     report_phase(progress, "normals", normal_source + walls, seconds["normals"])
 
     start = time.perf_counter()
