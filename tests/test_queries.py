@@ -372,3 +372,16 @@ def test_neighbour_table_is_one_query_with_int32_indices():
     distance, neighbour = tree.query(points, k=6)
     found_distance, found = neighbour_table(tree, 6)
     assert found.dtype == np.int32 and np.array_equal(found, neighbour) and np.array_equal(found_distance, distance)
+
+
+def test_two_boxes_touching_along_an_edge_are_read_by_ray_parity(monkeypatch):
+    """An edge of 4 triangles (two sheets touching, as Poisson leaves) keeps every edge even: ray
+    parity stays valid there, and the winding number everywhere would take seconds on a target."""
+    first = o3d.geometry.TriangleMesh.create_box()
+    second = o3d.geometry.TriangleMesh.create_box().translate([1.0, 1.0, 0.0])
+    both = first + second
+    queries = InsideOutside(both, allow_open=True)
+    assert not queries.closed
+    monkeypatch.setattr(InsideOutside, "_winding_inside", lambda self, points: pytest.fail("winding everywhere"))
+    inside = queries.occupancy(np.array([[0.5, 0.5, 0.5], [1.5, 1.5, 0.5], [1.5, 0.5, 0.5], [0.5, 1.5, 0.5]]))
+    assert inside.tolist() == [True, True, False, False]
