@@ -232,7 +232,8 @@ class InsideOutside:
         if absolute:
             estimate = np.abs(estimate)
         unsure = np.abs(estimate - 0.5) < FAST_WINDING_MARGIN
-        estimate[unsure] = np.abs(self.winding_number(points[unsure])) if absolute else self.winding_number(points[unsure])
+        exact = self.winding_number(points[unsure])
+        estimate[unsure] = np.abs(exact) if absolute else exact
         return estimate > 0.5
 
     def winding_number(self, points) -> np.ndarray:

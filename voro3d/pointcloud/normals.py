@@ -6,7 +6,7 @@ import numpy as np
 from .preprocess import NOISE_NEIGHBOURS, SPACING_NEIGHBOURS, plane_normals, wall_points
 from .tuning import SIGN_SAMPLE
 
-__all__ = ["estimate_normals", "orient_normals", "sign_disagreement", "repair_normals"]
+__all__ = ["estimate_normals", "orient_normals", "sign_disagreement", "repair_normals", "unusable_normals"]
 
 # Neighbours for normal estimation and orientation.
 NEIGHBOURS = 16
@@ -21,6 +21,12 @@ REPAIRABLE_SHARE = 0.5
 # Graph edges whose weights are computed at a time: their (block, 3) float64 temporaries, not the
 # whole graph's (16 edges a point), are alive.
 EDGE_BLOCK = 2**20
+
+
+def unusable_normals(normals: np.ndarray) -> np.ndarray:
+    """(n,) bool: the normals of zero length, NaN or inf, which :func:`repair_normals` replaces."""
+    length = np.linalg.norm(np.asarray(normals, np.float64), axis=1)
+    return ~np.isfinite(length) | (length < 1e-12)
 
 
 def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -49,7 +55,7 @@ def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
     normals = np.asarray(normals, np.float64)
     length = np.linalg.norm(normals, axis=1)
-    bad = ~np.isfinite(length) | (length < 1e-12)
+    bad = unusable_normals(normals)
     if bad.mean() > REPAIRABLE_SHARE:
         raise ValueError(f"{int(bad.sum())} of {len(normals)} normals are zero, NaN or inf: the cloud's normals "
                          "are not usable (drop them to have normals estimated)")

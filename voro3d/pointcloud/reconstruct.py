@@ -22,7 +22,7 @@ import numpy as np
 from ..queries import point_areas
 from ..snapping import NOISY_SMOOTHING
 from ..geometry import grid_voxel
-from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement
+from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement, unusable_normals
 from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, outlier_neighbours
 from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
@@ -272,7 +272,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     points, normals = merge_duplicates(points, normals)
     repaired = 0
     if normals is not None:  # zero, NaN or inf ones (scanners write them) from their neighbours
-        repaired = int((~(np.linalg.norm(normals, axis=1) >= 1e-12)).sum())
+        repaired = int(unusable_normals(normals).sum())
         normals = repair_normals(points, normals)
     # A dense cloud is reconstructed from a subset (see the docstring).
     distinct, subset = points.shape[0], analysis_subset(points.shape[0], fit_options.get("seed", 0))
