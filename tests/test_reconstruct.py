@@ -251,6 +251,18 @@ def test_reconstruct_points_repairs_zero_and_nan_normals_itself(torus_cloud):
     assert chamfer[0] < 1.2 * chamfer[1]
 
 
+def test_an_open3d_clouds_empty_normals_mean_none(torus_cloud):
+    """np.asarray(cloud.normals) of an Open3D cloud without normals is (0, 3): estimate them."""
+    from voro3d.pointcloud import reconstruct_points
+
+    _, points, _ = torus_cloud
+    cloud = _cloud(points[:2000])
+    _, _, info = reconstruct_points(np.asarray(cloud.points), np.asarray(cloud.normals), grid=16, steps=20)
+    assert info.normals == "estimated"
+    with pytest.raises(ValueError, match=r"normals must have the points' shape \(2000, 3\), got \(5, 3\)"):
+        reconstruct_points(points[:2000], np.ones((5, 3)), grid=16)
+
+
 def test_georeferenced_coordinates_keep_their_precision(torus_cloud):
     """A scan in map coordinates (x, y about 5e5 and 5e6 metres): Open3D's float32 queries, whose step
     there is 0.5, are made about the object's centre. Before, CD 2.9 -> 4.2 and NC 0.995 -> 0.964."""

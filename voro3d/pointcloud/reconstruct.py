@@ -186,7 +186,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     ----------
     points : (n, 3) float64
     normals : (n, 3) float64 or None
-        Unit outward normals, or None to estimate them.
+        Outward normals, or None (or an empty array, as ``np.asarray(cloud.normals)`` gives for an
+        Open3D cloud without normals) to estimate them.
     grid : int or "auto"
         VoroMesh grid, at least 4 (uniform); ``"auto"`` picks the finest from the spacing
         (:func:`auto_grid`: 32-128) and, for the fit, an adaptive band over it
@@ -234,7 +235,9 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     points = as_points(points, "points", min_count=MIN_POINTS)
     if normals is not None:
         normals = np.asarray(normals, np.float64)
-        if normals.shape != points.shape:
+        if normals.size == 0:
+            normals = None
+        elif normals.shape != points.shape:
             raise ValueError(f"normals must have the points' shape {points.shape}, got {normals.shape}")
     plan = as_plan(plan)
     with trusted(), poisson_helper(points.shape[0], threads, wanted=plan.target in ("auto", "poisson")) as helper:
