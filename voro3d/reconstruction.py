@@ -50,9 +50,10 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     geometry : open3d.geometry.PointCloud, open3d.geometry.TriangleMesh, their ``open3d.t``
         versions, a ``(vertices, triangles)`` pair, (n, 3) or (n, 6) float array (points, or
         points then normals), or a path to a mesh or point-cloud file.
-        Point clouds use their normals when they have them, checked (zero or NaN ones, up to half, are
-        repaired from their neighbours, signs that disagree between neighbours re-oriented,
-        normals that all point inward flipped); otherwise normals are estimated and oriented.
+        Point clouds use their normals when they have them, checked (zero or NaN ones repaired
+        from their neighbours, or past half ours estimated instead; signs that disagree between
+        neighbours re-oriented; normals that all point inward flipped); otherwise normals are
+        estimated and oriented.
         Repeated points are merged; objects far apart are reconstructed one by one
         (:func:`voro3d.pointcloud.separate_objects`).
     grid : int or "auto"

@@ -11,7 +11,7 @@ __all__ = ["estimate_normals", "orient_normals", "sign_disagreement", "repair_no
 # Neighbours for normal estimation and orientation.
 NEIGHBOURS = 16
 # Share of unusable (zero-length, NaN) given normals that is repaired from the neighbours;
-# beyond it the cloud's normals are refused. Set where repaired normals stop beating our own
+# beyond it the reconstruction estimates its own instead (repair_normals refuses them). Set where repaired normals stop beating our own
 # estimate: bunny, fandisk, armadillo at 20k points with their true normals, a share made NaN at
 # random, grid 64, CD clean / 0.5% noise (2026-12-05): none 0.620 / 1.030, 0.710 / 1.082, 0.527 /
 # 1.175; 5% 0.623 / 1.026, 0.714 / 1.089, 0.528 / 1.184; 20% 0.624 / 1.049, 0.718 / 1.110, 0.538 /

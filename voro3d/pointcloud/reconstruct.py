@@ -22,7 +22,7 @@ import numpy as np
 from ..queries import point_areas
 from ..snapping import NOISY_SMOOTHING
 from ..geometry import grid_voxel
-from .normals import estimate_normals, orient_normals, repair_normals, sign_disagreement, unusable_normals
+from .normals import REPAIRABLE_SHARE, estimate_normals, orient_normals, repair_normals, sign_disagreement, unusable_normals
 from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, outlier_neighbours
 from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
@@ -59,7 +59,8 @@ class PointCloudInfo:
         Where the normals came from: ``"estimated"`` or ``"given"``, then ``", re-oriented"`` when
         the given signs disagreed between neighbours (``MAX_SIGN_DISAGREEMENT``), ``", N repaired"``
         when N were zero, NaN or inf (taken from their neighbours) and ``", flipped"`` when they
-        pointed inward.
+        pointed inward; ``"estimated (...)"`` when over ``REPAIRABLE_SHARE`` of the given ones were
+        unusable (``plan.normals`` ``"check"``; ``"trust"`` refuses them).
     level : float
         Winding level of the oriented points (:func:`~voro3d.pointcloud.surface.winding_level`,
         clipped to 0-0.5): over ``CLOSED_LEVEL`` they enclose a volume.
@@ -273,10 +274,15 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     start = time.perf_counter()
     n_points = points.shape[0]
     points, normals = merge_duplicates(points, normals)
-    repaired = 0
+    repaired, dropped = 0, ""
     if normals is not None:  # zero, NaN or inf ones (scanners write them) from their neighbours
-        repaired = int(unusable_normals(normals).sum())
-        normals = repair_normals(points, normals)
+        unusable = int(unusable_normals(normals).sum())
+        if normal_plan == "check" and unusable > REPAIRABLE_SHARE * len(normals):
+            # Past that share our own estimate does as well (the measurement beside it).
+            dropped = f" ({unusable:,} of the {len(normals):,} given normals were zero, NaN or inf)"
+            normals, normal_plan = None, "estimate"
+        else:
+            repaired, normals = unusable, repair_normals(points, normals)
     # A dense cloud is reconstructed from a subset (see the docstring).
     distinct, subset = points.shape[0], analysis_subset(points.shape[0], fit_options.get("seed", 0))
     if subset is not None:
@@ -336,6 +342,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     start = time.perf_counter()
     if normals is None:
         normals, normal_source = estimate_normals(framed, walls=stats.walls, neighbours=neighbours), "estimated"
+        normal_source += dropped
     seconds["normals"] += time.perf_counter() - start
     walls = "" if stats.walls is None or not stats.walls.any() else \
         f" ({stats.walls.sum():,} points, {stats.walls.mean():.1%}, span both sides of a thin wall: fitted on their nearer side)"
