@@ -30,10 +30,12 @@ def unusable_normals(normals: np.ndarray) -> np.ndarray:
 
 
 def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Unit normals with the few unusable ones (zero-length, NaN, inf) taken from their neighbours.
+    """Unit normals with the unusable ones (zero-length, NaN, inf) taken from their neighbours.
 
     Scanners write a zero normal where they could not fit one; such a point gets the mean of
-    the usable normals of its ``NEIGHBOURS`` nearest points.
+    the usable normals of its ``NEIGHBOURS`` nearest points that point the way its nearest one
+    does: across a wall thinner than their reach the two sides' normals are opposite, and their
+    plain mean cancelled (the cup abc_00000009 and the lid abc_00000007 at 3k points, 2% zero).
 
     Parameters
     ----------
@@ -48,8 +50,7 @@ def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     Raises
     ------
     ValueError
-        More than ``REPAIRABLE_SHARE`` of the normals are unusable, or a point has no usable
-        normal among its neighbours.
+        More than ``REPAIRABLE_SHARE`` of the normals are unusable.
     """
     from scipy.spatial import cKDTree
 
@@ -63,11 +64,11 @@ def repair_normals(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     if bad.any():
         good = np.flatnonzero(~bad)
         _, neighbour = cKDTree(points[good]).query(points[bad], k=min(NEIGHBOURS, good.size), workers=-1)
-        mean = unit[good][neighbour.reshape(bad.sum(), -1)].sum(axis=1)
-        norm = np.linalg.norm(mean, axis=1)
-        if (norm < 1e-9).any():
-            raise ValueError("a zero-length normal has no usable normal among its neighbours")
-        unit[bad] = mean / norm[:, None]
+        near = unit[good][neighbour.reshape(bad.sum(), -1)]
+        # The nearest one's side only: a sum of vectors within 90 degrees of it, never zero.
+        same = np.einsum("bkd,bd->bk", near, near[:, 0]) > 0
+        mean = np.einsum("bkd,bk->bd", near, same.astype(np.float64))
+        unit[bad] = mean / np.linalg.norm(mean, axis=1)[:, None]
     return unit
 
 
