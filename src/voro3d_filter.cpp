@@ -24,7 +24,7 @@ namespace {
 constexpr std::int64_t kFaceBlock = 1024;
 
 using Floats = py::array_t<float, py::array::c_style | py::array::forcecast>;
-using Indices = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>;
+using voro3d::Indices;
 
 py::array_t<float> bilateral_normals(const Floats& normals, const Indices& near, const Floats& spatial,
                                      double normal_width, int passes, int threads) {

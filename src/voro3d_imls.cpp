@@ -23,8 +23,8 @@ namespace {
 
 constexpr std::int64_t kQueryBlock = 512;
 
-using Doubles = py::array_t<double, py::array::c_style | py::array::forcecast>;
-using Indices = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>;
+using Doubles = voro3d::Points;  // any float64 rows, converted once
+using voro3d::Indices;
 
 std::tuple<py::array_t<double>, py::array_t<double>, py::array_t<double>> imls_field(
     const Doubles& points, const Doubles& normals, const Doubles& widths, const Doubles& queries,
@@ -45,12 +45,8 @@ std::tuple<py::array_t<double>, py::array_t<double>, py::array_t<double>> imls_f
   }
   if (robust_passes < 0) throw py::value_error("robust_passes must be >= 0");
   if (threads < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(threads));
+  voro3d::check_indices(neighbour, "neighbour", k, "q", n, "points");
   const std::int64_t* index = neighbour.data();
-  for (std::int64_t e = 0; e < q * k; ++e) {
-    if (index[e] < 0 || index[e] >= n) {
-      throw py::value_error("neighbour holds " + std::to_string(index[e]) + ", outside [0, " + std::to_string(n) + ")");
-    }
-  }
   const double* p = points.data();
   const double* m = normals.data();
   const double* h = widths.data();

@@ -164,7 +164,7 @@ double winding_at(const Tree& tree, const double* q, double beta) {
   return total / kFourPi;
 }
 
-using Points = py::array_t<double, py::array::c_style | py::array::forcecast>;
+using voro3d::Points;
 
 // (n, 3) with `rows` rows where it is not negative.
 void check_rows(const Points& array, const char* name, py::ssize_t rows) {
