@@ -250,9 +250,10 @@ def _check_fit(mesh, points, voxel: float, offset: float = 0.0) -> None:
     """Refuse a cloud's mesh that is far off its points (``MAX_HULL_VOLUME``, ``MAX_MEDIAN_DISTANCE``
     voxels beyond the ``offset`` its target keeps from them by design, ``PointCloudInfo.offset``),
     read from at most ``CHECK_POINTS`` of them, evenly."""
+    import open3d as o3d
     from scipy.spatial import ConvexHull
 
-    from .queries import InsideOutside
+    from .geometry import centred_scene
     from .watertight import signed_volume
 
     points = points[::check_stride(len(points))]
@@ -260,13 +261,11 @@ def _check_fit(mesh, points, voxel: float, offset: float = 0.0) -> None:
     if ratio > MAX_HULL_VOLUME:
         raise ValueError(f"the reconstructed surface encloses {ratio:.1f} times the volume of the points' convex hull: "
                          "it balloons around the points instead of following them (normals that point every which way?)")
-    # allow_open: welded, the vertices the extraction splits where cells touch along an edge only
-    # read as a non-manifold edge, and a distance needs no inside.
-    # About the points' centre: Open3D's float32 distances would be 0.5 off at 5e6 (georeferenced scans).
-    centre = points.mean(axis=0)
-    vertices = np.asarray(mesh.vertices) - centre
-    distance = (float(np.median(InsideOutside((vertices, np.asarray(mesh.triangles)), allow_open=True)
-                                .unsigned_distance(points - centre))) - offset) / voxel
+    # A distance needs no inside (nor the edge counts InsideOutside would make); about the mesh's
+    # centre, as Open3D's float32 would be 0.5 off at 5e6 (georeferenced scans).
+    scene, origin = centred_scene(np.asarray(mesh.vertices), np.asarray(mesh.triangles))
+    distance = scene.compute_distance(o3d.core.Tensor((points - origin).astype(np.float32))).numpy()
+    distance = (float(np.median(distance)) - offset) / voxel
     if distance > MAX_MEDIAN_DISTANCE:
         raise ValueError(f"the reconstructed surface lies {distance:.1f} voxels from the median point: it does not follow "
                          "the points")

@@ -10,13 +10,14 @@ __all__ = ["estimate_normals", "orient_normals", "sign_disagreement", "repair_no
 
 # Neighbours for normal estimation and orientation.
 NEIGHBOURS = 16
-# Share of unusable (zero-length, NaN) given normals that is repaired from the neighbours;
-# beyond it the reconstruction estimates its own instead (repair_normals refuses them). Set where repaired normals stop beating our own
-# estimate: bunny, fandisk, armadillo at 20k points with their true normals, a share made NaN at
-# random, grid 64, CD clean / 0.5% noise (2026-12-05): none 0.620 / 1.030, 0.710 / 1.082, 0.527 /
-# 1.175; 5% 0.623 / 1.026, 0.714 / 1.089, 0.528 / 1.184; 20% 0.624 / 1.049, 0.718 / 1.110, 0.538 /
-# 1.216; 50% 0.638 / 1.091, 0.749 / 1.184, 0.570 / 1.283; our estimate 0.639 / 1.231, 0.742 / 1.292,
-# 0.570 / 1.492 (NC alike: at 50% within 0.0018 of intact normals). It was 1%, unmeasured.
+# Share of unusable (zero-length, NaN) given normals that is repaired from the neighbours; beyond it
+# the reconstruction estimates its own instead (repair_normals refuses them). Set where repaired
+# normals stop beating our own estimate: bunny, fandisk, armadillo at 20k points with their true
+# normals, a share made NaN at random, grid 64, CD clean / 0.5% noise (2026-12-05): none 0.620 /
+# 1.030, 0.710 / 1.082, 0.527 / 1.175; 5% 0.623 / 1.026, 0.714 / 1.089, 0.528 / 1.184; 20% 0.624 /
+# 1.049, 0.718 / 1.110, 0.538 / 1.216; 50% 0.638 / 1.091, 0.749 / 1.184, 0.570 / 1.283; our estimate
+# 0.639 / 1.231, 0.742 / 1.292, 0.570 / 1.492 (NC alike: at 50% within 0.0018 of intact normals). It
+# was 1%, unmeasured.
 REPAIRABLE_SHARE = 0.5
 # Graph edges whose weights are computed at a time: their (block, 3) float64 temporaries, not the
 # whole graph's (16 edges a point), are alive.
