@@ -31,8 +31,8 @@ the points define (``voro3d/pointcloud/``):
    overlap) are reconstructed one by one, each at its own grid (``separate_objects``: two unit
    spheres 50 apart gave 216 faces in all on one grid).
 2. **Normals** (``normals.py``): the cloud's own, checked, not trusted: zero or NaN ones are
-   repaired from their neighbours (past half, ``REPAIRABLE_SHARE``, ours are estimated instead); signs that disagree between
-   neighbours on one sheet (``sign_disagreement`` over 0.1: a bare ``pcd.estimate_normals()`` reads
+   repaired from their neighbours (past half, ``REPAIRABLE_SHARE``, ours are estimated instead);
+   signs that disagree between neighbours on one sheet (``sign_disagreement`` over 0.1: a bare ``pcd.estimate_normals()`` reads
    0.16-0.36, consistent normals under 0.03) are re-oriented by our orienter (``orient_normals``);
    normals of a closed cloud that all point inward (winding level under -0.25) are flipped.
    ``PointCloudInfo.normals`` says which (``"given"``, ``"given, re-oriented"``, ``", flipped"``).
