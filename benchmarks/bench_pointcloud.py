@@ -636,8 +636,10 @@ def main():
     import voro3d.pointcloud.surface as surface_module
     import voro3d.pointcloud.targets as targets_module
 
-    if args.shell_depth is not None:
-        targets_module.SHELL_DEPTH = None if args.shell_depth == "none" else float(args.shell_depth)
+    if args.shell_depth == "none":
+        targets_module._shell_depth = lambda points, normals, resolution: None
+    elif args.shell_depth is not None:
+        targets_module.SHELL_DEPTH = float(args.shell_depth)
     if args.bridge_gap is not None:
         surface_module.MAX_BRIDGE_GAP = args.bridge_gap
     if args.hole_level is not None:

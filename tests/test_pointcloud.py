@@ -976,3 +976,57 @@ def test_imls_does_not_depend_on_its_blocks(sphere_cloud):
     whole = imls(points, normals, np.full(len(points), 0.05), queries)
     parts = imls(points, normals, np.full(len(points), 0.05), queries, block=97)
     assert all(np.array_equal(a, b) for a, b in zip(whole, parts))
+
+
+def _pole_on_a_plate(seed=0):
+    """A plate seen from above with a pole standing on it, seen from one side (-y): a scan of a table-top scene."""
+    rng = np.random.default_rng(seed)
+    plate = np.c_[rng.uniform(-1, 1, (12000, 2)), np.zeros(12000)]
+    angle = rng.uniform(np.pi, 2 * np.pi, 3000)
+    pole = np.c_[0.04 * np.cos(angle), 0.04 * np.sin(angle), rng.uniform(0, 0.6, 3000)]
+    return np.vstack([plate[np.hypot(plate[:, 0], plate[:, 1]) > 0.04], pole])
+
+
+def test_a_table_is_oriented_towards_the_object_on_it():
+    """The cloud's centroid lies above a table with an object on it: the volume test about it turned the table's
+    normals down (and the solid grew above it); the table's mean curvature, with the object's, does not."""
+    from voro3d.pointcloud import estimate_normals
+
+    points = _pole_on_a_plate()
+    normals = estimate_normals(points)
+    on_plate = points[:, 2] == 0.0
+    assert np.mean(normals[on_plate, 2] > 0.5) > 0.99
+    assert np.mean(normals[~on_plate, 1] < -0.2) > 0.9  # the pole's seen side faces -y
+    shape, target, info = reconstruct_points(points, grid=32, steps=100)
+    vertices = np.asarray(cloud_mesh(shape, target).vertices)
+    far = (np.abs(vertices[:, 0]) > 0.5) & (np.abs(vertices[:, 0]) < 0.8) & (np.abs(vertices[:, 1]) < 0.5)
+    assert vertices[far, 2].max() < 2.0 * info.voxel and vertices[far, 2].min() < -0.1
+
+
+def test_mean_curvature_reads_a_sphere_and_its_orientation(sphere_cloud):
+    from scipy.spatial import cKDTree
+
+    from voro3d.pointcloud.normals import mean_curvature
+
+    points, normals = sphere_cloud
+    radius = float(np.median(np.linalg.norm(points, axis=1)))
+    _, neighbours = cKDTree(points).query(points, k=17)
+    curvature = mean_curvature(points, normals, neighbours[:, 1:])
+    assert abs(np.median(curvature) * radius - 1.0) < 0.05
+    assert np.array_equal(mean_curvature(points, -normals, neighbours[:, 1:]), -curvature)
+    neighbours[::7, -3:] = len(points)  # rows cut short
+    assert abs(np.median(mean_curvature(points, normals, neighbours[:, 1:])) * radius - 1.0) < 0.05
+
+
+def test_shell_depths_follow_the_seen_curvature_between_the_bounds():
+    from voro3d.pointcloud.surface import shell_depths
+
+    rng = np.random.default_rng(4)
+    cap = rng.normal(size=(4000, 3))
+    cap /= np.linalg.norm(cap, axis=1, keepdims=True)
+    cap = cap[cap[:, 2] > 0.0]  # a hemisphere seen from above
+    for radius, expected in ((0.1, 0.1), (0.02, 0.04), (1.0, 0.125)):
+        depth = shell_depths(radius * cap, cap, 0.125, 0.04)
+        assert abs(np.median(depth) - expected) < 0.1 * expected
+    plane = np.c_[rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)]
+    assert np.all(shell_depths(plane, np.tile([0.0, 0.0, 1.0], (2000, 1)), 0.125, 0.04) == 0.125)

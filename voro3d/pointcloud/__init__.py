@@ -72,7 +72,8 @@ the points define (``voro3d/pointcloud/``):
    - *One-sided scans* (``surface.py``): the IMLS field (kernel width per point the larger of
      0.75-1.5 local spacings and 4 noise deviations) near the points and the smoothed winding
      number away from them, at the level that puts the solid behind the scanned side, held
-     within ``SHELL_DEPTH`` (6% of the diagonal) of the points where they do not enclose it (a
+     within each point's shell depth (the radius of the seen surface's curvature, at most
+     ``SHELL_DEPTH``, 6% of the diagonal) of the points where they do not enclose it (a
      shell under the seen side instead of a block out to the box; ``fields.py``), its pieces
      less than ``MAX_BRIDGE_GAP`` apart (what one viewpoint sees apart) joined by thin rods
      (``fields.bridge``; also the shell below), sampled on a

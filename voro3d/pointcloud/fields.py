@@ -112,21 +112,30 @@ def _query_near(tree, resolution: int, chosen, reach: float, distance, nearest) 
                                                                distance_upper_bound=reach, workers=-1)
 
 
-def limit_reach(resolution: int, depth: float) -> float:
-    """How far :func:`depth_limit` reads the distance to the points: ``depth`` and the blur's reach
-    of four nodes, beyond which only the side matters (fit-frame units)."""
+def limit_reach(resolution: int, depth):
+    """How far :func:`depth_limit` reads the distance to the points: ``depth`` (one, or each
+    point's) and the blur's reach of four nodes, beyond which only the side matters (fit-frame units)."""
     from ..geometry import grid_voxel
 
-    return depth + 4.0 * grid_voxel(resolution)
+    return np.asarray(depth) + 4.0 * grid_voxel(resolution)
 
 
-def depth_limit(distance, resolution: int, depth: float) -> np.ndarray:
+def depth_limit(distance, resolution: int, depth, nearest=None) -> np.ndarray:
     """Distance to the nearest point (:func:`node_distance`, reaching at least
     :func:`limit_reach`) minus ``depth``, blurred by a Gaussian of one node so that the union of
-    balls does not show on the far side of the shell."""
+    balls does not show on the far side of the shell.
+
+    ``depth`` is one for all points, or each point's (then ``nearest``, from :func:`node_distance`,
+    says whose depth a node reads)."""
     from scipy import ndimage
 
-    return ndimage.gaussian_filter(np.minimum(distance, limit_reach(resolution, depth)), 1.0, mode="nearest") - depth
+    from ..geometry import grid_voxel
+
+    depth = np.asarray(depth, np.float64)
+    if depth.ndim:
+        depth = np.append(depth, depth.max())[nearest]  # nodes out of every reach read the deepest
+    beyond = np.minimum(distance - depth, 4.0 * grid_voxel(resolution))
+    return ndimage.gaussian_filter(beyond, 1.0, mode="nearest")
 
 
 def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> np.ndarray:

@@ -1,7 +1,7 @@
 """A closure cut back to the points' convex hull.
 
 Where no point was seen, the target's solid is a guess: Poisson's smoothest closure, or the IMLS
-solid held within ``SHELL_DEPTH`` of an open scan. Nothing any point bounds lies outside their
+solid held within the shell depth of an open scan. Nothing any point bounds lies outside their
 convex hull, yet such guesses swell past it: a hand whose fingers were seen from one side comes
 back as a ball around them, the underside of a lid scanned from above as a slab below its rim.
 Where a plan's ``hull`` is ``"on"`` the solid is cut back to the hull, a margin of

@@ -19,7 +19,7 @@ import numpy as np
 from .fields import MIN_SUPPORT, GridSurface, bridge, closing, depth_limit, limit_reach, mesh_field, node_distance, within
 from .tuning import MAX_BRIDGE_GAP, SHEET_HUG
 
-__all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "target_surface",
+__all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "shell_depths", "target_surface",
            "winding_level"]
 
 # Neighbours that enter one IMLS evaluation. Gaussian weights beyond ~3 kernel widths vanish;
@@ -31,6 +31,8 @@ ROBUST_PASSES = 2
 IMLS_BAND = 3.0
 # Gaussian smoothing of the far-field winding numbers, in coarse-grid nodes.
 FAR_FIELD_SMOOTHING = 1.5
+# Neighbours over which shell_depths reads a point's curvature.
+CURVATURE_NEIGHBOURS = 32
 
 
 @dataclass
@@ -255,11 +257,12 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
         Between the two bounds: 1/2 spans a hole's rim without bulging (the cap over a round hole
         in a sphere is the flat disk) but cuts into parts seen from one side only, whose winding
         number stays under 1/2; a partial cloud's own, lower level keeps those and balloons its caps.
-    depth : float, optional
-        Fit-frame units. The solid reaches no further than this from the points, except where
-        it encloses what lies further (the inside of a surface seen all round, or closed but for
-        holes narrower than twice the depth): behind a one-sided scan it is then a shell this
-        thick under the seen side, instead of a block out to the box (:func:`~voro3d.pointcloud.fields.depth_limit`).
+    depth : float or (n,) float64, optional
+        Fit-frame units, one or each point's (:func:`shell_depths`). The solid reaches no further
+        than this from the points, except where it encloses what lies further (the inside of a
+        surface seen all round, or closed but for holes narrower than twice the depth): behind a
+        one-sided scan it is then a shell this thick under the seen side, instead of a block out
+        to the box (:func:`~voro3d.pointcloud.fields.depth_limit`).
 
     Returns
     -------
@@ -302,7 +305,7 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     field = field.reshape((resolution,) * 3)
     limit = None
     if depth is not None:
-        limit = depth_limit(distance.reshape(field.shape), resolution, depth)
+        limit = depth_limit(distance.reshape(field.shape), resolution, depth, nearest.reshape(field.shape))
         field = within(field, limit, step)
         # Patches one viewpoint sees apart are one object; the limit must not cut the bridges.
         field = bridge(field, points, MAX_BRIDGE_GAP, min_support=min_support)
@@ -330,3 +333,28 @@ def winding_level(points, normals, areas, offset: float, *, n_probes: int = 2000
     winding = point_winding_number(points, normals, np.vstack([points[probes] - offset * normals[probes],
                                                                points[probes] + offset * normals[probes]]), areas=areas)
     return float(0.5 * (np.median(winding[:len(probes)]) + np.median(winding[len(probes):])))
+
+
+def shell_depths(points, normals, most: float, least: float, *, k: int = CURVATURE_NEIGHBOURS) -> np.ndarray:
+    """How deep the solid behind each point of an open scan reaches: the radius of the seen surface's
+    mean curvature, between ``least`` and ``most`` (fit-frame units).
+
+    What was not seen is guessed to continue what was: behind a round patch (the front of a limb,
+    a head) the object goes on about as deep as the patch is curved; behind a flat or hollow one,
+    ``most``. One depth for every point made whatever is smaller than it a blob: an object
+    scanned on a table, in a room.
+
+    The curvature is :func:`~voro3d.pointcloud.normals.mean_curvature` over the ``k`` nearest
+    neighbours, averaged over them twice (a depth that varies smoothly, as a radius does).
+    """
+    from scipy.spatial import cKDTree
+
+    from .normals import mean_curvature
+
+    k = min(k + 1, len(points))
+    _, neighbour = cKDTree(points).query(points, k=k, workers=-1)
+    neighbour = neighbour[:, 1:]
+    curvature = mean_curvature(points, normals, neighbour)
+    for _ in range(2):
+        curvature = 0.5 * (curvature + curvature[neighbour].mean(axis=1))
+    return np.clip(1.0 / np.maximum(curvature, 1.0 / most), min(least, most), most)

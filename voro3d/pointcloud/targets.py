@@ -16,8 +16,8 @@ from .poisson import poisson_surface
 from .hull import clip_to_hull
 from .preprocess import check_stride
 from .sightlines import carve_sightlines
-from .surface import target_surface
-from .tuning import FILTER_WIDTH_PER_NOISE, HOLE_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE, SHELL_DEPTH
+from .surface import shell_depths, target_surface
+from .tuning import FILTER_WIDTH_PER_NOISE, HOLE_LEVEL, MAX_POISSON_ESCAPE, MIN_COVERAGE, SHELL_DEPTH, THINNEST_SHELL_NODES
 
 __all__ = ["build_target", "check_coverage"]
 
@@ -76,11 +76,11 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
             target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
     kind = "poisson" if target is not None else "imls"
     if target is None:
-        # Behind an open scan the solid is held within SHELL_DEPTH of the points (a shell under the
+        # Behind an open scan the solid is held within each point's shell depth (a shell under the
         # seen side) unless they enclose it; a closed cloud's holes are closed at HOLE_LEVEL.
         target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
                                 hole_level=max(level, HOLE_LEVEL) if closed else None,
-                                depth=None if closed else SHELL_DEPTH)
+                                depth=None if closed else _shell_depth(points, normals, resolution))
     if hull:
         target = clip_to_hull(target, points, resolution)
     if choice == "auto" and not target.dense:
@@ -88,6 +88,14 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance)
         return ("sheet", sheet, None) if sheet is not None else (kind, target, distance)
     return kind, target, None
+
+
+def _shell_depth(points, normals, resolution: int) -> np.ndarray:
+    """Each point's depth behind an open scan (:func:`~voro3d.pointcloud.surface.shell_depths`): from
+    ``THINNEST_SHELL_NODES`` nodes of the field's grid up to ``SHELL_DEPTH``."""
+    from ..geometry import grid_voxel
+
+    return shell_depths(points, normals, SHELL_DEPTH, THINNEST_SHELL_NODES * grid_voxel(resolution))
 
 
 def check_coverage(target, points, widths, *, distance=None) -> None:

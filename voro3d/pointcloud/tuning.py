@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
@@ -170,6 +170,17 @@ HOLE_LEVEL = 0.42
 # whose points all lie on its top and read a level of 0.2505, 357 -> 83; abc_00000006 70 -> 54),
 # and up to 9x higher on the rest (cow 7.4 -> 70, bunny 11 -> 92): their holes are closed, not cut.
 SHELL_DEPTH = 0.125
+# Each point's depth (surface.shell_depths: the radius of the seen surface's mean curvature) is at
+# most SHELL_DEPTH and at least this many nodes of the field's grid (two VoroMesh voxels at
+# FIELD_REFINEMENT 2: a layer of inside cells the fit can hold). SHELL_DEPTH for every point (the
+# rule before) against each point's own, 2026-12-05, no normals, grid 64: objects on a table
+# (bench_scenes.py, 12 dev meshes) from 1 view CD 138.3 -> 135.5, NC 0.807 -> 0.808, F1 0.285 ->
+# 0.286 (lower CD on 11 of 12); from 3 views 124.7 -> 93.7, 0.886 -> 0.889, 0.392 -> 0.406 (12 of
+# 12: the objects no longer sit in a slab the table's depth deep); the objects alone from 1 view
+# (bench_pointcloud) 249.8 -> 248.7, NC 0.722 -> 0.721, F1 0.350 either way; 3 and 6 views read
+# closed (no limit). This bound at 2 / 4 / 8 nodes: 1 view CD 248.7 / 248.7 / 249.8. Rerun:
+# bench_scenes.py --shell-depth uniform.
+THINNEST_SHELL_NODES = 4.0
 # Pieces of an open cloud's solid (or of the offset shell) closer than this, fit-frame units (about
 # 12% of the diagonal), are joined by a rod (fields.bridge): patches one viewpoint sees apart (a
 # cow seen from behind: rump, head and a leg, 0.04-0.09 apart; an elephant's trunk, 0.15). Range
