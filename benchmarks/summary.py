@@ -173,14 +173,17 @@ Dense clean 100k-point clouds of all 38 dev meshes, VoroMesh only.""",
 viewpoints, grazing hits dropped, depth noise along the ray) on 12 dev meshes, both methods in one
 run (`--alpha-wrap`: CGAL's `alpha_wrap_3` too). Where the views cover the object (6 views) the mesh
 follows the points closer than Poisson's; from 1 or 3 views the unseen side is closed by the
-winding-number field, at most `SHELL_DEPTH` (6% of the diagonal) behind the seen side where the
-points do not enclose it: a shell, not a block out to the box, while Poisson runs flaps out of it.
+winding-number field, behind the seen side as deep as it is curved (at most `SHELL_DEPTH`, 6% of the
+diagonal) where the points do not enclose it: a shell, not a block out to the box, while Poisson runs
+flaps out of it.
 Where they do (3 views), the unseen parts are closed at a winding number of at least `HOLE_LEVEL`
 (0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5). Run on a
 quiet machine: VoroMesh takes 2.03x Open3D's pipeline summed (3.3x on one view, where Open3D's
 orientation and Poisson take about a second), 63% of it the target surface. The 6-view rows were
 rerun on 2026-12-05 with the mesh split to the detail the points hold (5 of 12 split once: CD 1.290
--> 1.286, NC 0.971 -> 0.972, 5.2 -> 5.4 s a cloud).""",
+-> 1.286, NC 0.971 -> 0.972, 5.2 -> 5.4 s a cloud), the 1-view rows with the orientation's sign read
+from the mean curvature (CD 249.8 -> 208.8, NC 0.722 -> 0.720, F1 0.350 -> 0.366; 3 and 6 views read
+the same).""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
@@ -195,6 +198,15 @@ a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one vie
 (1475 -> 1350; its IMLS target reads 803). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
 against 71-74).""",
+    "scenes": """\
+`benchmarks/bench_scenes.py`: each of the 12 meshes of `pointcloud_range` on a plate (1.6x its footprint),
+scanned from 1 or 3 viewpoints 30 degrees above it, as a turntable or a handheld scanner sees an object
+on a table: the undersides are never seen and the object stands on a surface seen from one side.
+Until 2026-12-05 the orientation's sign came from the normals pointing away from the centroid, which
+lies above the table: on all 38 dev meshes so placed, 26 clouds from 1 view and 15 from 3 had over a
+quarter of their normals wrongly signed, the table's turned down and its solid grown above it. From
+the mean curvature: 9 and 4. VoroMesh has the lower CD from both, Poisson the higher F1 (one sheet at
+the plate's top, whose unseen underside our shell guesses about 3x too deep) and NC from one view.""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside
