@@ -190,7 +190,8 @@ The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both
 2026-12-05 with the thin-wall test of `preprocess.wall_points`, and again with the shell closed
 back to the points, `fields.closing`). Against Open3D's pipeline VoroMesh has the lower CD and the
 higher F1 in every condition, NC +0.075 / +0.056 / +0.008 from 1 / 3 / 6 views. Against alpha wrap:
-1 view CD 464 against 721, 3 views 66.4 against 51.2, 6 views 4.08 against 6.50. The closed shell
+1 view CD 444 against 721 (464 before the orientation read the mean curvature, 2026-12-05; the
+screwdriver 393 -> 120), 3 views 66.4 against 51.2, 6 views 4.08 against 6.50. The closed shell
 took the lid abc_00000007 from 6 views from an IMLS solid (CD 62.2, NC 0.730) to a thin solid
 following both sides of its wall (2.27, NC 0.923; alpha wrap 2.51); from 3 views, all from above,
 its hollow underside is never seen and the IMLS closure fills it (357 against alpha wrap's 5.7:
