@@ -120,7 +120,7 @@ def limit_reach(resolution: int, depth):
     return np.asarray(depth) + 4.0 * grid_voxel(resolution)
 
 
-def depth_limit(distance, resolution: int, depth, nearest=None) -> np.ndarray:
+def depth_limit(distance, resolution: int, depth, *, nearest=None) -> np.ndarray:
     """Distance to the nearest point (:func:`node_distance`, reaching at least
     :func:`limit_reach`) minus ``depth``, blurred by a Gaussian of one node so that the union of
     balls does not show on the far side of the shell.

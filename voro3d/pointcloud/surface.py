@@ -305,7 +305,7 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     field = field.reshape((resolution,) * 3)
     limit = None
     if depth is not None:
-        limit = depth_limit(distance.reshape(field.shape), resolution, depth, nearest.reshape(field.shape))
+        limit = depth_limit(distance.reshape(field.shape), resolution, depth, nearest=nearest.reshape(field.shape))
         field = within(field, limit, step)
         # Patches one viewpoint sees apart are one object; the limit must not cut the bridges.
         field = bridge(field, points, MAX_BRIDGE_GAP, min_support=min_support)
