@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_pointcloud import SHARED, best_poisson, dev_shapes, range_scan, _pieces
+from bench_pointcloud import SHARED, _mean, _pieces, best_poisson, dev_shapes, range_scan
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "scenes"
@@ -88,11 +88,6 @@ def run(name, views, grid, *, with_poisson, picture_dir):
         for method, mesh in meshes.items():
             save_mesh(mesh, picture_dir / f"{Path(name).stem}_{views}_{method}.ply")
     return row
-
-
-def _mean(rows, method, key):
-    values = [row[method][key] for row in rows if method in row and key in row[method]]
-    return float(np.mean(values)) if values else float("nan")
 
 
 def write(out: Path, meta, rows):

@@ -129,13 +129,12 @@ def depth_limit(distance, resolution: int, depth, *, nearest=None) -> np.ndarray
     says whose depth a node reads)."""
     from scipy import ndimage
 
-    from ..geometry import grid_voxel
-
     depth = np.asarray(depth, np.float64)
     if depth.ndim:
-        depth = np.append(depth, depth.max())[nearest]  # nodes out of every reach read the deepest
-    beyond = np.minimum(distance - depth, 4.0 * grid_voxel(resolution))
-    return ndimage.gaussian_filter(beyond, 1.0, mode="nearest")
+        # Nodes out of every point's reach (nearest == n, distance inf) read the limit's cap whatever
+        # the depth: any will do.
+        depth = np.append(depth, depth.max())[nearest]
+    return ndimage.gaussian_filter(np.minimum(distance, limit_reach(resolution, depth)) - depth, 1.0, mode="nearest")
 
 
 def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> np.ndarray:
