@@ -22,19 +22,30 @@ if [ ${#need_apt[@]} -gt 0 ] && command -v apt-get >/dev/null 2>&1; then
 fi
 
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip
+# A download cut off midway (a CI run lost ray's 79 MB wheel at 62.7 MB six times over) is resumed by pip
+# and, failing that, the whole install is tried again: three tries, half a minute apart.
+retry() {
+    local try
+    for try in 1 2 3; do
+        "$@" && return 0
+        [ "$try" -lt 3 ] && { echo "failed (try $try of 3): $*; trying again in 30 s" >&2; sleep 30; }
+    done
+    return 1
+}
+retry .venv/bin/python -m pip install -q --upgrade pip
+pip_install() { retry .venv/bin/python -m pip install -q --resume-retries 20 "$@"; }
 if [ "$what" = demo ]; then
     # The demo (python -m voro3d.demo) and the voro3d command need no extra: no torch, no ray, no test tools.
-    .venv/bin/python -m pip install -q -e .
+    pip_install -e .
     exit 0
 fi
 # A CPU build of torch first, so the torch extra's torch>=2.2 is already met (no multi-GB CUDA wheel).
 if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
     if command -v nvidia-smi >/dev/null 2>&1; then
-        .venv/bin/python -m pip install -q "torch>=2.2"
+        pip_install "torch>=2.2"
     else
-        .venv/bin/python -m pip install -q torch==2.13.0
+        pip_install torch==2.13.0
     fi
 fi
 # Every extra, so that the tests cover training and ONNX export (torch, onnx) and `voro3d batch --engine ray`.
-.venv/bin/python -m pip install -q -e ".[torch,onnx,ray,dev]"
+pip_install -e ".[torch,onnx,ray,dev]"
