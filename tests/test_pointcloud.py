@@ -1003,6 +1003,61 @@ def test_a_table_is_oriented_towards_the_object_on_it():
     assert vertices[far, 2].max() < 2.0 * info.voxel and vertices[far, 2].min() < -0.1
 
 
+def _range_scan(meshes, eye, target, pixels=200):
+    """Points and true normals that a pinhole camera at ``eye`` sees of Open3D meshes (grazing hits dropped)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    for mesh in meshes:
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    rays = scene.create_rays_pinhole(50.0, target, eye, [0, 0, 1], pixels, pixels)
+    hit = scene.cast_rays(rays)
+    depth, rays = hit["t_hit"].numpy().ravel(), rays.numpy().reshape(-1, 6)
+    normals = hit["primitive_normals"].numpy().reshape(-1, 3).astype(np.float64)
+    facing = np.abs(np.einsum("ij,ij->i", normals, rays[:, 3:])) / np.linalg.norm(rays[:, 3:], axis=1)
+    seen = np.isfinite(depth) & (facing > 0.26)
+    return rays[seen, :3] + depth[seen, None] * rays[seen, 3:], normals[seen]
+
+
+def test_a_ball_on_a_table_and_the_table_face_outward():
+    """Seen at a slant, the ball's shadow parts it from the table, whose edge is out of the frame: the table
+    alone bends neither way. It faces the rest of the cloud, the ball outward (the rule before: 90% inverted)."""
+    import open3d as o3d
+
+    from voro3d.pointcloud import estimate_normals
+
+    table = o3d.geometry.TriangleMesh.create_box(2, 2, 0.05).translate([-1, -1, -0.05])
+    ball = o3d.geometry.TriangleMesh.create_sphere(0.3, 60).translate([0, 0, 0.29])
+    points, truth = _range_scan([table, ball], [1.5, -1.5, 2.0], [0, 0, 0.2])
+    on_table = np.abs(points[:, 2]) < 0.001
+    right = np.einsum("ij,ij->i", estimate_normals(points), truth) > 0
+    assert right[on_table].mean() > 0.99 and right[~on_table].mean() > 0.99
+
+
+def test_a_cup_inner_wall_faces_its_hollow():
+    """A thin-walled cup sampled all round: its inner wall bends inward and is tied to the outer one only
+    over the rim; edges straight across the wall must not tie the two sides as one."""
+    from voro3d.pointcloud import estimate_normals
+
+    rng = np.random.default_rng(3)
+    inner, outer, height, floor = 0.45, 0.5, 0.8, 0.05
+
+    def wall(radius, count, sign):
+        angle, z = rng.uniform(0, 2 * np.pi, count), rng.uniform(0 if sign > 0 else floor, height, count)
+        radial = np.c_[np.cos(angle), np.sin(angle), np.zeros(count)]
+        return radius * radial + np.c_[np.zeros((count, 2)), z], sign * radial
+
+    def disc(low, high, z, count, up):
+        angle, radius = rng.uniform(0, 2 * np.pi, count), np.sqrt(rng.uniform(low**2, high**2, count))
+        return np.c_[radius * np.cos(angle), radius * np.sin(angle), np.full(count, z)], np.tile([0, 0, up], (count, 1))
+
+    parts = [wall(outer, 14000, 1.0), wall(inner, 12000, -1.0), disc(0, outer, 0.0, 4000, -1.0),
+             disc(0, inner, floor, 3200, 1.0), disc(inner, outer, height, 800, 1.0)]
+    points, truth = np.vstack([p for p, _ in parts]), np.vstack([n for _, n in parts]).astype(np.float64)
+    right = np.einsum("ij,ij->i", estimate_normals(points), truth) > 0
+    assert right.mean() > 0.98 and right[14000:26000].mean() > 0.98
+
+
 def test_mean_curvature_reads_a_sphere_and_its_orientation(sphere_cloud):
     from scipy.spatial import cKDTree
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .preprocess import NOISE_NEIGHBOURS, SPACING_NEIGHBOURS, plane_normals, wall_points
-from .tuning import SIGN_SAMPLE
+from .tuning import MAX_TIE_WEIGHT, SIGN_SAMPLE, UNDECIDED_SIGMAS
 
 __all__ = ["estimate_normals", "mean_curvature", "orient_normals", "sign_disagreement", "repair_normals", "unusable_normals"]
 
@@ -188,13 +188,14 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
     spanning tree (scipy) carries each point's sign to its neighbours along the flattest
     paths that stay on one side of thin walls. That is Open3D's
     ``orient_normals_consistent_tangent_plane`` in spirit, but vectorised: about 2 s instead of
-    10 s to 9 minutes for 10^5 points here. Each connected piece of the graph is then flipped if
-    its normals point inward on balance: its :func:`mean_curvature` sums negative (a surface bends
-    away from its outside, closed or open).
-    Finally the tree is cut into smooth patches (where normals turn or an edge leaves the
-    tangent plane) and a patch flips when its points clearly see open space behind them and
-    enclosed space in front (:func:`_outside_votes`): a flat face that the tree reached
-    across a sharp edge with the wrong sign (the base of a bust) is caught there.
+    10 s to 9 minutes for 10^5 points here. The tree is then cut into smooth patches (where
+    normals turn or an edge leaves the tangent plane), joined again into parts that each point
+    outward on balance: a surface bends away from its outside, closed or open, so a part whose
+    :func:`mean_curvature` sums negative is flipped; a flat part faces the rest of the cloud
+    (:func:`_part_flips`: an object and the table it stands on are decided apart). Finally a
+    patch flips when its points clearly see open space behind them and enclosed space in front
+    (:func:`_outside_votes`): a flat face that the tree reached across a sharp edge with the
+    wrong sign (the base of a bust) is caught there.
 
     Parameters
     ----------
@@ -210,7 +211,7 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
     (n, 3) float64
     """
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
     from scipy.spatial import cKDTree
 
     from ..queries import neighbour_table
@@ -229,38 +230,10 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
     for start in range(0, len(rows), EDGE_BLOCK):
         weights[start:start + EDGE_BLOCK] = _edge_weights(points, normals, rows[start:start + EDGE_BLOCK],
                                                          cols[start:start + EDGE_BLOCK])
-    tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(n, n)).tocsr())
-    pieces, piece = connected_components(tree, directed=False)
-    # One breadth-first pass over the whole forest: a virtual node n joined to one point per piece.
-    firsts = np.unique(piece, return_index=True)[1]
-    tree = tree.tocoo()
-    joined = coo_matrix((np.r_[tree.data, np.ones(pieces)], (np.r_[tree.row, np.full(pieces, n)],
-                                                              np.r_[tree.col, firsts])), shape=(n + 1, n + 1))
-    _, parent = breadth_first_order(joined.tocsr(), n, directed=False)
-    parent[n] = n
-    parent[firsts] = n
-    # sign[i] = flip[i] * sign[parent[i]], resolved by pointer jumping: log(depth) vectorised rounds.
-    sign = np.ones(n + 1)
-    sign[:n] = np.where(np.einsum("ij,ij->i", normals, normals[np.minimum(parent[:n], n - 1)]) < 0, -1.0, 1.0)
-    sign[firsts] = 1.0
-    ancestor = parent.copy()
-    while (ancestor != n).any():
-        sign, ancestor = sign * sign[ancestor], ancestor[ancestor]
-    normals *= sign[:n, None]
-    # A surface bends away from its outside on balance: a piece whose mean curvature sums negative
-    # points inward. The enclosed volume about the centroid (the sum of n . (p - c)) decides a closed
-    # piece as well, but not an open one: an object scanned from above with the table it stands on
-    # has its centroid above the table, which turned the table's normals down. Wrongly signed
-    # normals, 38 dev meshes (benchmark range scanner, 30k points), volume -> curvature: on a table
-    # (bench_scenes' plate) 1 view 57.8% -> 18.1% (clouds over a quarter wrong 26 -> 9), 3 views
-    # 31.0% -> 8.5% (15 -> 4); the object alone from 1 view 9.4% -> 1.2% (4 -> 0); 3 and 6 views,
-    # clean 5k points and 20k at 0.5% noise the same to 0.01 points. Worse on one cloud: homer on a
-    # table from 1 view, 14% -> 82% (2026-12-05).
-    outward = np.bincount(piece, weights=mean_curvature(points, normals, neighbours[:, 1:]), minlength=pieces)
-    normals[outward[piece] < 0] *= -1.0
-    # A sharp edge or a wall thinner than the plane fits can still flip a whole face: cut the
-    # tree where normals turn or the edge leaves the tangent plane, and let each smooth patch
-    # vote on which side of it is open space.
+    tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(n, n)).tocsr()).tocoo()
+    agree = np.einsum("ij,ij->i", normals[tree.row], normals[tree.col]) >= 0
+    normals *= _forest_signs(n, tree.row, tree.col, agree)[:, None]
+    # Smooth patches: the tree cut where normals turn or an edge leaves the tangent plane.
     step = points[tree.col] - points[tree.row]
     step /= np.maximum(np.linalg.norm(step, axis=1), 1e-300)[:, None]
     smooth = ((np.einsum("ij,ij->i", normals[tree.row], normals[tree.col]) > 0.95)
@@ -268,6 +241,14 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
               & (np.abs(np.einsum("ij,ij->i", step, normals[tree.col])) < 0.3))
     patches, patch = connected_components(coo_matrix((np.ones(int(smooth.sum())), (tree.row[smooth], tree.col[smooth])),
                                                      shape=(n, n)), directed=False)
+    # Each part outward by its bending (mean curvature, not the volume about the centroid, which
+    # turned a table down under the object on it), the object and its table decided apart.
+    tie = weights < MAX_TIE_WEIGHT
+    flip = _part_flips(points, normals, mean_curvature(points, normals, neighbours[:, 1:]) * distances[:, graph_k],
+                       patch, patches, rows[tie], cols[tie])
+    normals[flip[patch]] *= -1.0
+    # A sharp edge or a wall thinner than the plane fits can still flip a whole face: each smooth
+    # patch votes on which side of it is open space.
     vote = _outside_votes(points, normals, float(np.median(distances[:, graph_k])))
     _flip_patches(normals, vote, patch)
     # A patch can still reach across a thin wedge (the base of a bust meeting its chest at a
@@ -284,6 +265,110 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, *, neighbours=None, 
                                                     shape=(n, n)), directed=False)
     _flip_patches(normals, vote, np.where(doubtful, group, groups))  # the rest, all +1, never flips
     return normals
+
+
+def _part_flips(points, normals, bending, patch, patches: int, rows, cols) -> np.ndarray:
+    """Which smooth patches to flip so that each part of the surface points outward.
+
+    Patches are joined into parts along their ties (Borůvka's rounds: each part takes its strongest
+    tie, then the ties are summed again between the joined parts). The tie between two parts is the
+    sum of ``n_i . n_j`` over the graph edges ``rows -> cols`` between them: whether they agree as
+    they are (> 0) or one is flipped (< 0). A tie that would make two parts disagree with what their
+    own bending says is refused while it is weaker than both (an object and the table it stands on
+    meet in a few edges whose plane fits mix both surfaces; a cup's inside meets its outside along
+    the whole rim). A part then points outward when its bending sums positive; one whose sum is
+    within ``UNDECIDED_SIGMAS`` of its spread (flat, or noise) and that is not the whole cloud faces
+    the rest of the points instead (a table with its edge out of view faces what stands on it).
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64
+        Normals consistent along the orientation tree.
+    bending : (n,) float64
+        Mean curvature times local spacing: the outward evidence of each point.
+    patch : (n,) int
+        Each point's smooth patch, of ``patches``.
+    rows, cols : (e,) int
+        The graph edges that may tie patches (edges across thin walls left out).
+
+    Returns
+    -------
+    (patches,) bool
+    """
+    n = points.shape[0]
+    across = patch[rows] != patch[cols]
+    first, second = patch[rows[across]], patch[cols[across]]
+    vote = np.einsum("ij,ij->i", normals[rows[across]], normals[cols[across]])
+    part = np.arange(patches)  # each patch's part (a patch's index) and its sign relative to it
+    sign = np.ones(patches)
+    total = np.bincount(patch, weights=bending, minlength=patches)
+    spread = np.bincount(patch, weights=bending**2, minlength=patches)
+    while True:
+        a, b = part[first], part[second]
+        keep = a != b
+        first, second, vote, a, b = first[keep], second[keep], vote[keep], a[keep], b[keep]
+        if not a.size:
+            break
+        keys, inverse = np.unique(np.minimum(a, b).astype(np.int64) * patches + np.maximum(a, b), return_inverse=True)
+        ties = np.bincount(inverse, weights=vote * sign[first] * sign[second], minlength=len(keys))
+        p, q = keys // patches, keys % patches
+        disagree = (total[p] > 0) != (np.where(ties < 0, -total[q], total[q]) > 0)
+        candidates = np.flatnonzero(~(disagree & (np.abs(ties) < np.minimum(np.abs(total[p]), np.abs(total[q])))))
+        if not candidates.size:
+            break
+        # Each part's strongest tie, in one order for all (strength, then key): the picks form a forest.
+        order = candidates[np.lexsort((keys[candidates], -np.abs(ties[candidates])))]
+        _, picks = np.unique(np.c_[p[order], q[order]].ravel(), return_index=True)
+        picked = np.unique(order[picks // 2])
+        relative, root = _forest_signs(patches, p[picked], q[picked], ties[picked] >= 0, roots=True)
+        parts = np.unique(part)
+        total = np.bincount(root[parts], weights=relative[parts] * total[parts], minlength=patches)
+        spread = np.bincount(root[parts], weights=spread[parts], minlength=patches)
+        sign *= relative[part]
+        part = root[part]
+    decision = total
+    size = np.bincount(part[patch], minlength=patches)  # of each part, under its root patch
+    undecided = (np.abs(total) <= UNDECIDED_SIGMAS * np.sqrt(spread)) & (size < n) & (size > 0)
+    if undecided.any():
+        own = part[patch]
+        sums = np.stack([np.bincount(own, weights=points[:, axis], minlength=patches) for axis in range(3)], axis=1)
+        rest = (points.sum(axis=0) - sums) / np.maximum(n - size, 1)[:, None]
+        facing = np.bincount(own, weights=np.einsum("ij,ij->i", normals * sign[patch, None], rest[own] - points),
+                             minlength=patches)
+        decision = np.where(undecided, facing, total)
+    return sign * np.where(decision[part] < 0, -1.0, 1.0) < 0
+
+
+def _forest_signs(count: int, rows, cols, agree, *, roots: bool = False):
+    """Signs (+1 / -1) of the ``count`` nodes of a forest, each relative to the first node of its tree.
+
+    ``rows -> cols`` are the forest's edges (each once), ``agree`` whether their ends keep the same
+    sign. With ``roots``, also each node's tree as that first node's index.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    forest = coo_matrix((np.where(agree, 1.0, 2.0), (rows, cols)), shape=(count, count)).tocsr()
+    pieces, piece = connected_components(forest, directed=False)
+    firsts = np.unique(piece, return_index=True)[1]
+    # One breadth-first pass over the whole forest: a virtual node joined to each tree's first node.
+    edges = forest.tocoo()
+    joined = coo_matrix((np.r_[edges.data, np.ones(pieces)], (np.r_[edges.row, np.full(pieces, count)],
+                                                              np.r_[edges.col, firsts])), shape=(count + 1, count + 1))
+    _, parent = breadth_first_order(joined.tocsr(), count, directed=False)
+    parent[count] = count
+    parent[firsts] = count
+    # sign[i] = flip[i] * sign[parent[i]], resolved by pointer jumping: log(depth) vectorised rounds.
+    inner = np.flatnonzero(parent[:count] != count)
+    key = np.minimum(rows, cols).astype(np.int64) * count + np.maximum(rows, cols)
+    order = np.argsort(key)
+    wanted = np.minimum(inner, parent[inner]).astype(np.int64) * count + np.maximum(inner, parent[inner])
+    sign = np.ones(count + 1)
+    sign[inner] = np.where(np.asarray(agree)[order][np.searchsorted(key[order], wanted)], 1.0, -1.0)
+    ancestor = parent.copy()
+    while (ancestor != count).any():
+        sign, ancestor = sign * sign[ancestor], ancestor[ancestor]
+    return (sign[:count], firsts[piece]) if roots else sign[:count]
 
 
 def mean_curvature(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray, *,

@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
@@ -31,6 +31,30 @@ MIN_NORMAL_AGREEMENT = 0.6
 # estimate_normals() on the noisy clouds, as a user runs it, 0.156-0.364; our own orientation of those
 # clouds 0-0.076.
 MAX_SIGN_DISAGREEMENT = 0.1
+# Graph edges that tie smooth patches into parts in the orientation (normals._part_flips): those
+# whose Hoppe weight (1 - |n_i.n_j| + |d.n_i| + |d.n_j|) is under this, i.e. that stay closer to
+# the surface than a right-angle turn; edges across a thin wall would tie its two sides as one.
+# Wrongly signed normals (mean %) against the meshes' own, 38 dev meshes, our estimate (the
+# benchmark range scanner, 30k points), 2026-12-05. Kinds: objects alone from 1 / 3 / 6 views,
+# 5k clean points, 20k at 0.5% noise; on bench_scenes' plate from 1 / 3 views; on it cropped to
+# 0.85 of its half-width (its edge out of the frame), from 1 / 3 views. Each piece of the graph
+# flipped on its curvature sum (the rule before the parts): 1.20 / 0.72 / 1.31, 5.38, 4.90; 18.1 /
+# 8.49; 22.9 / 16.7. Parts with every edge a tie: 1.11 / 1.28 / 1.77, 5.48, 4.43; 1.12 / 3.02; 22.7
+# / 17.4 (the cup abc_00000009 from 3 views 0 -> 21%: its inside tied to its outside across the
+# wall). Under 0.5: 1.14 / 0.76 / 1.12, 5.20, 6.09; 1.18 / 0.74; 7.8 / 8.9. Under 1.0: 1.11 / 0.72 /
+# 1.31, 5.39, 4.52; 1.10 / 0.70; 11.0 / 7.7. Under 1.5: 1.11 / 0.72 / 1.49, 5.39, 4.44; 1.12 / 0.70;
+# 12.6 / 5.7. The orientation tree's own edges as ties as well (it joins the table to the object
+# through their coin-toss relation): on the cropped plate 18.2 / 13.6, the rest the same.
+MAX_TIE_WEIGHT = 1.0
+# A part of the orientation whose curvature sum is within this many of its own spread (the root of
+# its sum of squares: what random signs would give) has no outward side of its own, and faces the
+# rest of the cloud (a table whose edge is out of view faces what stands on it). Wrongly signed
+# normals as above (mean %), 0 / 3 / 10 sigmas: on the cropped plate 21.2 / 11.0 / 10.4 from 1 view,
+# 16.3 / 7.7 / 7.0 from 3; the object held 3% of its diagonal above the cropped plate (apart, as a
+# ball's point contact scans) 29.2 / 2.5 / 3.1 and 23.8 / 2.2 / 0.6 (the rule before the parts: 24.0
+# and 31.1); on the whole plate from 1 view 1.11 / 1.10 / 2.03, the object held above it 0.73 / 0.73
+# / 1.64 (before the parts 12.9); the rest within 0.1.
+UNDECIDED_SIGMAS = 3.0
 # Fine-scale noise above this share of the spacing turns on the smoothing pass (plan denoise "auto"):
 # clean dev clouds read under 0.075, 0.25% noise and more at least 0.19.
 NOISY = 0.13
