@@ -206,7 +206,9 @@ on a table: the undersides are never seen and the object stands on a surface see
 Until 2026-12-05 the orientation's sign came from the normals pointing away from the centroid, which
 lies above the table: on all 38 dev meshes so placed, 26 clouds from 1 view and 15 from 3 had over a
 quarter of their normals wrongly signed, the table's turned down and its solid grown above it. From
-the mean curvature: 9 and 4. VoroMesh has the lower CD from both, Poisson the higher F1 (one sheet at
+the mean curvature of each connected piece: 9 and 4; of each part, the object and the table decided
+apart (`normals._part_flips`, 2026-12-05): 0 and 0 (CD 135.5 -> 130.8 and 93.7 -> 81.6, F1 0.286 ->
+0.320 and 0.406 -> 0.446). VoroMesh has the lower CD from both, Poisson the higher F1 (one sheet at
 the plate's top, whose unseen underside our shell guesses about 3x too deep) and NC from one view.""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
