@@ -177,24 +177,23 @@ winding-number field, behind the seen side as deep as it is curved (at most `SHE
 diagonal) where the points do not enclose it: a shell, not a block out to the box, while Poisson runs
 flaps out of it.
 Where they do (3 views), the unseen parts are closed at a winding number of at least `HOLE_LEVEL`
-(0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5). Run on a
-quiet machine: VoroMesh takes 2.03x Open3D's pipeline summed (3.3x on one view, where Open3D's
-orientation and Poisson take about a second), 63% of it the target surface. The 6-view rows were
-rerun on 2026-12-05 with the mesh split to the detail the points hold (5 of 12 split once: CD 1.290
--> 1.286, NC 0.971 -> 0.972, 5.2 -> 5.4 s a cloud), the 1-view rows with the orientation's sign read
-from the mean curvature (CD 249.8 -> 208.8, NC 0.722 -> 0.720, F1 0.350 -> 0.366; 3 and 6 views read
-the same).""",
+(0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5). Every row
+rerun on 2026-12-05, both methods and alpha wrap in one run on a quiet machine, with the orientation
+by parts (`normals._part_flips`; VoroMesh CD against the rows before 208.8 -> 208.4, 45.84 -> 45.76,
+1.29 -> 1.29): VoroMesh takes 2.08x Open3D's pipeline summed (3.3x on one view, where Open3D's
+orientation and Poisson take about a second; 2.3x on 3, 1.5x on 6), 63% of it the target surface.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
 2026-12-05 with the thin-wall test of `preprocess.wall_points`, and again with the shell closed
 back to the points, `fields.closing`). Against Open3D's pipeline VoroMesh has the lower CD and the
-higher F1 in every condition, NC +0.075 / +0.056 / +0.008 from 1 / 3 / 6 views. Against alpha wrap:
-1 view CD 444 against 721 (464 before the orientation read the mean curvature, 2026-12-05; the
-screwdriver 393 -> 120), 3 views 66.4 against 51.2, 6 views 4.08 against 6.50. The closed shell
+higher F1 in every condition, NC +0.071 / +0.057 / +0.009 from 1 / 3 / 6 views. Against alpha wrap
+(all three in one quiet run, 2026-12-05, with the orientation by parts): 1 view CD 444 against 721
+(464 before the orientation read the mean curvature; the screwdriver 393 -> 120), 3 views 65.7
+against 51.2, 6 views 4.09 against 6.50; VoroMesh 2.07x Open3D's pipeline summed. The closed shell
 took the lid abc_00000007 from 6 views from an IMLS solid (CD 62.2, NC 0.730) to a thin solid
 following both sides of its wall (2.27, NC 0.923; alpha wrap 2.51); from 3 views, all from above,
-its hollow underside is never seen and the IMLS closure fills it (357 against alpha wrap's 5.7:
+its hollow underside is never seen and the IMLS closure fills it (345 against alpha wrap's 5.7:
 a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one view keeps the shell
 (1475 -> 1350; its IMLS target reads 803). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
