@@ -348,13 +348,12 @@ def _forest_signs(count: int, rows, cols, agree, *, roots: bool = False):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import breadth_first_order, connected_components
 
-    forest = coo_matrix((np.where(agree, 1.0, 2.0), (rows, cols)), shape=(count, count)).tocsr()
-    pieces, piece = connected_components(forest, directed=False)
+    pieces, piece = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(count, count)),
+                                         directed=False)
     firsts = np.unique(piece, return_index=True)[1]
     # One breadth-first pass over the whole forest: a virtual node joined to each tree's first node.
-    edges = forest.tocoo()
-    joined = coo_matrix((np.r_[edges.data, np.ones(pieces)], (np.r_[edges.row, np.full(pieces, count)],
-                                                              np.r_[edges.col, firsts])), shape=(count + 1, count + 1))
+    joined = coo_matrix((np.ones(len(rows) + pieces), (np.r_[rows, np.full(pieces, count)], np.r_[cols, firsts])),
+                        shape=(count + 1, count + 1))
     _, parent = breadth_first_order(joined.tocsr(), count, directed=False)
     parent[count] = count
     parent[firsts] = count

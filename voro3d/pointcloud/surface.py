@@ -349,11 +349,10 @@ def shell_depths(points, normals, most: float, least: float, *, k: int = CURVATU
     """
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
     from .normals import mean_curvature
 
-    k = min(k + 1, len(points))
-    _, neighbour = cKDTree(points).query(points, k=k, workers=-1)
-    neighbour = neighbour[:, 1:]
+    neighbour = neighbour_table(cKDTree(points), min(k + 1, len(points)))[1][:, 1:]
     curvature = mean_curvature(points, normals, neighbour)
     for _ in range(2):
         curvature = 0.5 * (curvature + curvature[neighbour].mean(axis=1))
