@@ -41,6 +41,16 @@ __all__ = ["PoissonHelper", "PoissonSurface", "poisson_depth", "poisson_helper",
 # meshes, 2026-12-04) took 0.4-0.8x the time but CD +1-21% (+9% mean), NC -0.003 to -0.011; so do
 # sparse ones: depth 7 on the 12 benchmark meshes' clean 5k clouds, the whole call 0.90x the time,
 # mean CD 2.589 -> 2.769 (thingi32_252119 16.3 -> 18.5), NC 0.9466 -> 0.9460 (2026-12-05).
+# Nor with the mesh's vertices moved onto the points' IMLS surface after the solve (surface.TargetSurface
+# .project's Newton step, at most half a cell), for trusted clouds that are not dense: 12 benchmark
+# meshes, grid 64, clean 5k / 20k / a third missing / range scans from 3 and 6 views, same session,
+# quiet machine (2026-12-06): the whole call 0.93 / 0.85 / 0.77 / 0.75 / 0.72x the time (0.78x
+# summed), CD 2.43 -> 2.36, 0.64 -> 0.64, 361.2 -> 361.0, 45.8 -> 46.1, 1.29 -> 1.33, but NC -0.0012
+# / -0.0016 / -0.0048 / -0.0023 / -0.0024: the coarser octree fuses thin parts (cow at 20k CD 0.72 ->
+# 0.81; rocker-arm from 6 views 5.1 -> 6.1) and, with a third missing, buries a cow's points under its
+# tail, so that the sight-line carve opens its cap (NC 0.921 -> 0.878, F1 0.780 -> 0.611); moved by
+# up to a whole cell, thingi32_252119's clean 5k CD 15.9 -> 19.3. Moved at depth 8: CD 2.43 -> 2.37,
+# 0.64 -> 0.62, 361.2 -> 361.3, 45.8 -> 45.7, 1.29 -> 1.27, NC within -0.0014, for 1.10x the time.
 MIN_DEPTH, MAX_DEPTH = 6, 10
 # The cube Poisson solves in is this many times the points' longest side (Open3D's default ``scale``),
 # passed to it and read back by the box caps (:func:`_octree_box`).
