@@ -178,22 +178,24 @@ diagonal) where the points do not enclose it: a shell, not a block out to the bo
 flaps out of it.
 Where they do (3 views), the unseen parts are closed at a winding number of at least `HOLE_LEVEL`
 (0.42), not at the cloud's own lower level, whose caps ballooned (3-view CD 72.4 -> 47.5). Every row
-rerun on 2026-12-05, both methods and alpha wrap in one run on a quiet machine, with the orientation
-by parts (`normals._part_flips`; VoroMesh CD against the rows before 208.8 -> 208.4, 45.84 -> 45.76,
-1.29 -> 1.29): VoroMesh takes 2.08x Open3D's pipeline summed (3.3x on one view, where Open3D's
-orientation and Poisson take about a second; 2.3x on 3, 1.5x on 6), 63% of it the target surface.""",
+rerun on 2026-12-06, both methods and alpha wrap in one run, with the far field's winding numbers no
+longer blurred (`surface.target_surface`: the closures meet the seen surface without a ledge; VoroMesh
+against the rows before: CD 208.4 -> 209.8, 45.76 -> 45.85, 1.29 -> 1.29, NC 0.721 -> 0.728, 0.877 ->
+0.891, F1 0.366 -> 0.367, 0.660 -> 0.675): VoroMesh takes 2.05x Open3D's pipeline summed, 63% of it
+the target surface.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
 2026-12-05 with the thin-wall test of `preprocess.wall_points`, and again with the shell closed
 back to the points, `fields.closing`). Against Open3D's pipeline VoroMesh has the lower CD and the
 higher F1 in every condition, NC +0.071 / +0.057 / +0.009 from 1 / 3 / 6 views. Against alpha wrap
-(all three in one quiet run, 2026-12-05, with the orientation by parts): 1 view CD 444 against 721
-(464 before the orientation read the mean curvature; the screwdriver 393 -> 120), 3 views 65.7
-against 51.2, 6 views 4.09 against 6.50; VoroMesh 2.07x Open3D's pipeline summed. The closed shell
+(all three in one run, 2026-12-06, the far field no longer blurred): 1 view CD 444 against 721
+(464 before the orientation read the mean curvature; the screwdriver 393 -> 120), 3 views 68.1
+against 51.2 (65.7 with the blur; NC 0.904 -> 0.914 against alpha wrap's 0.902), 6 views 4.09
+against 6.50; VoroMesh 2.05x Open3D's pipeline summed. The closed shell
 took the lid abc_00000007 from 6 views from an IMLS solid (CD 62.2, NC 0.730) to a thin solid
 following both sides of its wall (2.27, NC 0.923; alpha wrap 2.51); from 3 views, all from above,
-its hollow underside is never seen and the IMLS closure fills it (345 against alpha wrap's 5.7:
+its hollow underside is never seen and the IMLS closure fills it (377 against alpha wrap's 5.7:
 a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one view keeps the shell
 (1475 -> 1350; its IMLS target reads 803). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
@@ -207,7 +209,8 @@ lies above the table: on all 38 dev meshes so placed, 26 clouds from 1 view and 
 quarter of their normals wrongly signed, the table's turned down and its solid grown above it. From
 the mean curvature of each connected piece: 9 and 4; of each part, the object and the table decided
 apart (`normals._part_flips`, 2026-12-05): 0 and 0 (CD 135.5 -> 130.8 and 93.7 -> 81.6, F1 0.286 ->
-0.320 and 0.406 -> 0.446). VoroMesh has the lower CD from both, Poisson the higher F1 (one sheet at
+0.320 and 0.406 -> 0.446). Rerun on 2026-12-06 with the far field's winding numbers not blurred: CD
+131.4 / 82.6, NC 0.802 -> 0.810 / 0.894 -> 0.899, F1 0.328 / 0.454. VoroMesh has the lower CD from both, Poisson the higher F1 (one sheet at
 the plate's top, whose unseen underside our shell guesses about 3x too deep) and NC from one view.""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
