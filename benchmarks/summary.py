@@ -161,10 +161,11 @@ mesh fit's), 75 and 40, on 6 dev meshes x 4 conditions at grid 64: 75 costs CD 0
 (tangent-plane orientation with 16 neighbours, not the 30 of `pointcloud`), on the 8 organic and
 thingi32 dev meshes of `pointcloud` (on its CAD parts Open3D's orientation takes minutes at either
 setting: fandisk at 10^5 points, 437 s with 16) x the issue's six conditions, both methods in one run
-on a quiet machine (2026-12-05). Summed, VoroMesh 280 s against 332 s (0.84x). One row was capped
-(thingi32_75655 with a density ramp: 126 s, longer uncapped); without it 269 s against 207 s (1.30x).
-Per condition: 5k points 3.4x, 0.5% noise 2.6x, 1 and 3 views 4.3x and 3.2x (Open3D takes 0.6-2.6 s
-there, our fit alone 0.8-1.0 s), the density ramp 0.43x and 2% outliers 0.61x (Open3D's orientation of
+on a quiet machine (rerun 2026-12-06, with the orientation by parts and the IMLS far field unblurred;
+0.84x and 1.30x on 2026-12-05). Summed, VoroMesh 231 s against 291 s (0.79x). One row was capped
+(thingi32_75655 with a density ramp: 126 s, longer uncapped); without it 222 s against 165 s (1.35x).
+Per condition: 5k points 2.9x, 0.5% noise 2.6x, 1 and 3 views 3.8x and 2.6x (Open3D takes 0.5-2.6 s
+there, our fit alone 0.6-0.9 s), the density ramp 0.36x and 2% outliers 0.73x (Open3D's orientation of
 50k-100k points).""",
     "pointcloud_dense38": """\
 Dense clean 100k-point clouds of all 38 dev meshes, VoroMesh only.""",
