@@ -304,8 +304,8 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
         seconds = time.perf_counter() - start
         report = check_watertight(mesh)
         row["voromesh"] = dict(evaluate(mesh, source), seconds=seconds, split=info.seconds, grid=info.grid,
-                               noise=info.noise, outliers=info.n_outliers, smoothed=info.smoothed, target=info.target, level=info.level,
-                               watertight=bool(report.watertight),
+                               noise=info.noise, outliers=info.n_outliers, smoothed=info.smoothed, target=info.target,
+                               level=info.level, watertight=bool(report.watertight),
                                crossing_pairs=int(report.self_intersecting_pairs), pieces=_pieces(mesh))
         if colours is not None:
             row["voromesh"]["colour_error"] = _colour_error(mesh, source, low, high)

@@ -41,8 +41,8 @@ __all__ = ["PoissonHelper", "PoissonSurface", "poisson_depth", "poisson_helper",
 # meshes, 2026-12-04) took 0.4-0.8x the time but CD +1-21% (+9% mean), NC -0.003 to -0.011; so do
 # sparse ones: depth 7 on the 12 benchmark meshes' clean 5k clouds, the whole call 0.90x the time,
 # mean CD 2.589 -> 2.769 (thingi32_252119 16.3 -> 18.5), NC 0.9466 -> 0.9460 (2026-12-05).
-# Nor with the mesh's vertices moved onto the points' IMLS surface after the solve (surface.TargetSurface
-# .project's Newton step, at most half a cell), for trusted clouds that are not dense: 12 benchmark
+# Nor with the mesh's vertices moved onto the points' IMLS surface after the solve (the Newton step
+# of surface.TargetSurface.project, at most half a cell), for trusted clouds that are not dense: 12 benchmark
 # meshes, grid 64, clean 5k / 20k / a third missing / range scans from 3 and 6 views, same session,
 # quiet machine (2026-12-06): the whole call 0.93 / 0.85 / 0.77 / 0.75 / 0.72x the time (0.78x
 # summed), CD 2.43 -> 2.36, 0.64 -> 0.64, 361.2 -> 361.0, 45.8 -> 46.1, 1.29 -> 1.33, but NC -0.0012
