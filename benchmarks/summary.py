@@ -211,8 +211,9 @@ quarter of their normals wrongly signed, the table's turned down and its solid g
 the mean curvature of each connected piece: 9 and 4; of each part, the object and the table decided
 apart (`normals._part_flips`, 2026-12-05): 0 and 0 (CD 135.5 -> 130.8 and 93.7 -> 81.6, F1 0.286 ->
 0.320 and 0.406 -> 0.446). Rerun on 2026-12-06 with the far field's winding numbers not blurred: CD
-131.4 / 82.6, NC 0.802 -> 0.810 / 0.894 -> 0.899, F1 0.328 / 0.454. VoroMesh has the lower CD from both, Poisson the higher F1 (one sheet at
-the plate's top, whose unseen underside our shell guesses about 3x too deep) and NC from one view.""",
+131.4 / 82.6, NC 0.802 -> 0.810 / 0.894 -> 0.899, F1 0.328 / 0.454. VoroMesh has the lower CD from
+both, Poisson the higher F1 (one sheet at the plate's top, whose unseen underside our shell guesses
+about 3x too deep) and NC from one view.""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside
