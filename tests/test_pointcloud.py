@@ -10,6 +10,7 @@ from voro3d.metrics import evaluate
 from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio, imls, local_dimension, outlier_mask,
                                reconstruct_points, repair_normals, transfer_colors)
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
+from voro3d.pointcloud.fields import smooth_maximum
 from voro3d.pointcloud.surface import sheet_surface, target_surface, winding_level
 from voro3d.pointcloud.tuning import MAX_POISSON_ESCAPE, SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
@@ -842,6 +843,33 @@ def test_hole_level_sets_how_far_a_hole_cap_bulges(sphere_cloud):
         return axis[target.inside(axis), 2].max()
 
     assert top(None) > 0.65 and 0.4 <= top(0.5) < 0.5
+
+
+def test_the_far_field_is_a_distance_to_the_winding_level_set(sphere_cloud):
+    """Over the hole of a ball cut at z = 0.4 (radius 0.8), more than three kernel widths from every
+    point, the far field crosses zero along the axis with a slope of about one, as the IMLS band
+    does at the points (scaled by the kernel width instead, it crossed at a fifth of that and the
+    back of a one-sided scan's shell came out in terraces)."""
+    points, normals = sphere_cloud[0] * 0.8, sphere_cloud[1]
+    kept = points[:, 2] < 0.4
+    target = target_surface(points[kept], normals[kept], np.full(kept.sum(), 0.06), 48, level=0.5)
+    z = np.linspace(0.3, 0.6, 301)
+    value, _ = target._field_at(np.c_[np.zeros((301, 2)), z])
+    crossing = np.flatnonzero(np.diff(np.sign(value)))
+    assert crossing.size == 1 and 0.4 <= z[crossing[0]] < 0.5
+    slope = np.gradient(value, z)[crossing[0] - 10:crossing[0] + 10]
+    assert np.all((slope > 0.6) & (slope < 1.6))
+
+
+def test_smooth_maximum_rounds_the_crease_only():
+    a = np.linspace(-1.0, 1.0, 2001)
+    b = -a
+    rounded = smooth_maximum(a, b, 0.4)
+    assert np.array_equal(rounded[np.abs(a - b) >= 0.4], np.maximum(a, b)[np.abs(a - b) >= 0.4])
+    assert np.all(rounded >= np.maximum(a, b)) and np.isclose(rounded.max() - np.maximum(a, b).max(), 0.0)
+    assert np.isclose(rounded[1000], 0.1)  # width / 4 over the crease
+    assert np.abs(np.diff(rounded, 2)).max() < 1e-3  # no kink: the slope turns over the width
+    assert np.array_equal(smooth_maximum(a, b, 0.0), np.maximum(a, b))
 
 
 def test_an_open_one_sided_sheet_comes_out_as_a_thin_plate():

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "node_distance", "supported_pieces", "within"]
+__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "node_distance", "smooth_maximum", "supported_pieces", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
@@ -281,13 +281,25 @@ def _outside_at_border(field, step: float) -> np.ndarray:
     return field
 
 
-def within(field, limit, step: float) -> np.ndarray:
-    """``field``'s solid cut to where ``limit`` is negative, with the cavities this leaves (outside
-    regions that do not reach the grid's border: the inside of a closed part) filled; ``limit``
-    is set inside there too (in place), so that it never cuts a filled cavity."""
+def smooth_maximum(a, b, width: float):
+    """``max(a, b)`` with its crease rounded over ``width``: the solids where each is negative,
+    intersected, their edge rounded where the two surfaces meet or nearly coincide (a quadratic
+    smooth maximum: at most ``width / 4`` over the maximum, equal to it where ``a`` and ``b``
+    differ by more than ``width``)."""
+    if width <= 0.0:
+        return np.maximum(a, b)
+    blend = np.maximum(width - np.abs(a - b), 0.0) / width
+    return np.maximum(a, b) + 0.25 * width * blend * blend
+
+
+def within(field, limit, step: float, *, rounding: float = 0.0) -> np.ndarray:
+    """``field``'s solid cut to where ``limit`` is negative (the crease rounded over ``rounding``,
+    :func:`smooth_maximum`), with the cavities this leaves (outside regions that do not reach the
+    grid's border: the inside of a closed part) filled; ``limit`` is set inside there too (in
+    place), so that it never cuts a filled cavity."""
     from scipy import ndimage
 
-    field = np.maximum(field, limit)
+    field = smooth_maximum(field, limit, rounding)
     outside, _ = ndimage.label(field >= 0)
     open_space = np.unique(np.concatenate([np.ravel(np.take(outside, [0, -1], axis=a)) for a in range(3)]))
     cavity = (outside > 0) & ~np.isin(outside, open_space)

@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "SHELL_ROUNDING_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
@@ -213,6 +213,27 @@ SHELL_DEPTH = 0.125
 # closed (no limit). This bound at 2 / 4 / 8 nodes: 1 view CD 248.7 / 248.7 / 249.8. Rerun:
 # bench_scenes.py --shell-depth uniform.
 THINNEST_SHELL_NODES = 4.0
+# Where the depth limit meets the IMLS target's own far field (the winding number's level set, behind an open
+# scan's seen side), their crease is rounded over this many nodes of the field's grid (fields.smooth_maximum):
+# where the two nearly coincide, a sharp intersection showed each place they cross as terraces and rings on the
+# shell's back. 12 benchmark meshes, no normals, grid 64, far field as a distance, no blend (2026-12-06), range
+# scans from 1 view, rounding 0 / 0.75 / 1.5 / 3 / 6 nodes: CD 209.2 / 209.4 / 209.5 / 210.3 / 235.3 (at 6 the
+# elephant's thin parts cut, 262 -> 522), NC 0.7313 / 0.7323 / 0.7340 / 0.7381 / 0.7479, F1 0.3673 / 0.3684 /
+# 0.3690 / 0.3727 / 0.3841; from 3 views (7 IMLS targets) CD 45.78 / 45.74 / 45.61 / 45.34 / 44.65, NC 0.8953 /
+# 0.8953 / 0.8955 / 0.8958 / 0.8966. At 1.5 / 3: pointcloud_range_more's 16 from 1 view CD 442.9 / 446.7, NC
+# 0.7614 / 0.7638, from 3 views 69.1 / 68.9, NC 0.9173 both; objects on a table (bench_scenes.py) from 1 view
+# 134.5 / 132.5, NC 0.816 / 0.820, F1 0.330 / 0.334, from 3 views 84.7 / 83.5, 0.903 / 0.904, 0.459 / 0.464.
+# Rerun: bench_pointcloud.py --no-poisson --conditions "range scan 1 view" "range scan 3 views"; bench_scenes.py
+# --no-poisson.
+# Not kept (2026-12-06), with this rounding: the IMLS band (surface.IMLS_BAND) giving way to the far field over
+# its last 1 / 2 kernel widths, so that past the rim of a seen patch (a scan's silhouette) the band's edge, a
+# union of balls, shows no crust. 12 meshes from 1 view CD 210.3 -> 211.3 / 211.9, NC 0.7381 -> 0.7460 / 0.7490;
+# 3 views 45.34 -> 45.13 / 45.15, NC 0.8958 -> 0.9034 / 0.9064; range_more's 16 from 1 view NC 0.7638 -> 0.7744
+# / 0.7781, 3 views 0.9173 -> 0.9208 / 0.9231; on a table NC 0.820 / 0.904 -> 0.831 / 0.915 (at 2). But the
+# blend cut what the band held across an unseen gap: the elephant from 3 views lost a foot and cheburashka from
+# 1 view an ear (two pieces each). The far field capped at the distance to the points, without it, split an
+# armadillo on a table from 3 views.
+SHELL_ROUNDING_NODES = 3.0
 # Pieces of an open cloud's solid (or of the offset shell) closer than this, fit-frame units (about
 # 12% of the diagonal), are joined by a rod (fields.bridge): patches one viewpoint sees apart (a
 # cow seen from behind: rump, head and a leg, 0.04-0.09 apart; an elephant's trunk, 0.15). Range
