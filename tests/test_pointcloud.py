@@ -9,8 +9,8 @@ import pytest
 from voro3d.metrics import evaluate
 from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio, imls, local_dimension, outlier_mask,
                                reconstruct_points, repair_normals, transfer_colors)
-from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.fields import smooth_maximum
+from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.surface import sheet_surface, target_surface, winding_level
 from voro3d.pointcloud.tuning import MAX_POISSON_ESCAPE, SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
@@ -848,8 +848,8 @@ def test_hole_level_sets_how_far_a_hole_cap_bulges(sphere_cloud):
 def test_the_far_field_is_a_distance_to_the_winding_level_set(sphere_cloud):
     """Over the hole of a ball cut at z = 0.4 (radius 0.8), more than three kernel widths from every
     point, the far field crosses zero along the axis with a slope of about one, as the IMLS band
-    does at the points (scaled by the kernel width instead, it crossed at a fifth of that and the
-    back of a one-sided scan's shell came out in terraces)."""
+    does at the points (scaled by the kernel width instead, it crossed at 0.09 and the back of a
+    one-sided scan's shell came out in terraces)."""
     points, normals = sphere_cloud[0] * 0.8, sphere_cloud[1]
     kept = points[:, 2] < 0.4
     target = target_surface(points[kept], normals[kept], np.full(kept.sum(), 0.06), 48, level=0.5)
