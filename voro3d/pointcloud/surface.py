@@ -96,11 +96,12 @@ class TargetSurface(GridSurface):
         node = tuple(np.clip(np.rint(index), 0, self.resolution - 1).astype(np.int64).T)
         close = (np.abs(value) < step) & ~self.removed[node]
         tested = np.flatnonzero(close)
-        if close.any() and self.dense:
+        if tested.size and self.dense:
             from ..queries import point_winding_number
 
-            value[tested] = self.level - point_winding_number(self.points, self.normals, queries[tested], areas=self.areas)
-        elif close.any():
+            value[tested] = self.level - point_winding_number(self.points, self.normals, queries[tested],
+                                                              areas=self.areas)
+        elif tested.size:
             from scipy.spatial import cKDTree
 
             tree = cKDTree(self.points)
@@ -302,7 +303,6 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     areas = point_areas(points)
     coarse = point_winding_number(points, normals, grid_nodes(coarse_resolution),
                                   areas=areas).reshape((coarse_resolution,) * 3)
-    slope = np.linalg.norm(np.stack(np.gradient(coarse, 2.0 / (coarse_resolution - 1))), axis=0)
     # Not blurred: a Gaussian of 1.5 coarse nodes, meant to smooth hole fillings against the
     # Barnes-Hut error, moved each filling off the rim it closes, and the IMLS band met it in a
     # step (a bust cut flat underneath, seen from 3 views, got a dome set back behind a ledge).
@@ -317,7 +317,8 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     winding = ndimage.map_coordinates(coarse, index.T, order=1, mode="nearest")
     if level is None:
         level = float(np.clip(winding_level(points, normals, areas, float(np.median(widths))), 0.0, 0.5))
-    slope = ndimage.map_coordinates(slope, index.T, order=1, mode="nearest")
+    coarse_slope = np.linalg.norm(np.stack(np.gradient(coarse, 2.0 / (coarse_resolution - 1))), axis=0)
+    slope = ndimage.map_coordinates(coarse_slope, index.T, order=1, mode="nearest")
     field[far] = ((level if hole_level is None else hole_level) - winding) / np.maximum(slope, FAR_FIELD_MIN_SLOPE)
     field = field.reshape((resolution,) * 3)
     limit = None
