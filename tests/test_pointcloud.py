@@ -9,7 +9,7 @@ import pytest
 from voro3d.metrics import evaluate
 from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio, imls, local_dimension, outlier_mask,
                                reconstruct_points, repair_normals, transfer_colors)
-from voro3d.pointcloud.fields import smooth_maximum
+from voro3d.pointcloud.fields import smooth_band_edge, smooth_maximum
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.surface import sheet_surface, target_surface, winding_level
 from voro3d.pointcloud.tuning import MAX_POISSON_ESCAPE, SHELL_DEPTH
@@ -870,6 +870,47 @@ def test_smooth_maximum_rounds_the_crease_only():
     assert np.isclose(rounded[1000], 0.1)  # width / 4 over the crease
     assert np.abs(np.diff(rounded, 2)).max() < 1e-3  # no kink: the slope turns over the width
     assert np.array_equal(smooth_maximum(a, b, 0.0), np.maximum(a, b))
+
+
+def test_the_band_edge_is_smoothed_where_it_crosses_zero_away_from_the_points():
+    """A band reading inside (-0.1) against a far field reading outside (+0.3) across the plane
+    x = 0: blurred, the jump becomes a slope and the zero crossing moves by less than a node;
+    not where the points are within the clearance, nor where both sides agree."""
+    r = 33
+    step = 2.0 / (r - 1)
+    x = np.broadcast_to(np.linspace(-1.0, 1.0, r)[:, None, None], (r, r, r))
+    band = x < 0
+    options = dict(width=step, reach=2, clearance=2.0 * step)
+    field, seam = smooth_band_edge(np.where(band, -0.1, 0.3), band, np.full((r, r, r), 1.0), step, **options)
+    line = field[:, r // 2, r // 2]
+    assert np.abs(np.diff(line)).max() < 0.2 and seam[:, 0, 0].sum() == 6  # the crossing's nodes and two either side
+    crossing = np.flatnonzero(np.diff(np.sign(line)))
+    assert crossing.size == 1
+    zero = crossing[0] - line[crossing[0]] / (line[crossing[0] + 1] - line[crossing[0]])
+    assert abs(zero - (r // 2 - 0.75)) < 1.0  # Marching Cubes put it at 0.1 / 0.4 of the jump before
+    assert np.array_equal(field[~seam], np.where(band, -0.1, 0.3)[~seam])
+    near = np.abs(x) + 0.5 * step  # points at the plane: the band is the surface there
+    kept, seam = smooth_band_edge(np.where(band, -0.1, 0.3), band, near, step, **options)
+    assert not seam.any() and np.array_equal(kept, np.where(band, -0.1, 0.3))
+    agreeing, seam = smooth_band_edge(np.where(band, -0.1, -0.3), band, np.full((r, r, r), 1.0), step, **options)
+    assert not seam.any() and np.array_equal(agreeing, np.where(band, -0.1, -0.3))
+
+
+def test_the_band_edge_blur_does_not_cut_a_neck_the_band_holds():
+    """Two solid blocks of the far field joined only by a rod three nodes thick of band nodes
+    reading inside: blurred alone, the rod would open; it stays, and the blocks stay one piece."""
+    from scipy import ndimage
+
+    r = 33
+    step = 2.0 / (r - 1)
+    i, j, k = np.indices((r, r, r))
+    blocks = (np.abs(i - r // 2) > 6) & (np.abs(j - r // 2) < 8) & (np.abs(k - r // 2) < 8)
+    rod = (np.abs(i - r // 2) <= 6) & (np.abs(j - r // 2) <= 1) & (np.abs(k - r // 2) <= 1)
+    field = np.where(blocks, -0.3, np.where(rod, -0.05, 0.3))
+    assert ndimage.gaussian_filter(field, 1.0)[r // 2, r // 2, r // 2] > 0  # the blur alone opens it
+    smoothed, seam = smooth_band_edge(field.copy(), rod, np.full((r, r, r), 1.0), step, width=step, reach=2,
+                                      clearance=2.0 * step)
+    assert seam.any() and ndimage.label(smoothed < 0)[1] == 1
 
 
 def test_an_open_one_sided_sheet_comes_out_as_a_thin_plate():

@@ -3,7 +3,8 @@
 The plumbing the target surfaces of :mod:`~voro3d.pointcloud.surface` share: a signed field on a
 grid (:class:`GridSurface`: trilinear values, distance to its mesh), its Marching Cubes mesh
 without the pieces the points do not support (:func:`supported_pieces`), and the distance-to-points
-field that holds a solid near the points (:func:`depth_limit`, :func:`within`).
+field that holds a solid near the points (:func:`depth_limit`, :func:`within`), and the blur where
+two fields meet in a jump (:func:`smooth_band_edge`).
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "node_distance", "smooth_maximum", "supported_pieces", "within"]
+__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "node_distance", "smooth_band_edge", "smooth_maximum", "supported_pieces", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
@@ -137,6 +138,12 @@ def depth_limit(distance, resolution: int, depth, *, nearest=None) -> np.ndarray
     return ndimage.gaussian_filter(np.minimum(distance, limit_reach(resolution, depth)) - depth, 1.0, mode="nearest")
 
 
+def _neighbours():
+    """Per axis, the slices ``(low, high)`` of a 3D grid whose nodes are neighbours along it."""
+    return [tuple(tuple(slice(*ends) if a == axis else slice(None) for a in range(3))
+                  for ends in ((None, -1), (1, None))) for axis in range(3)]
+
+
 def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> np.ndarray:
     """``field`` with the pieces of its solid that the points support joined across gaps of up to
     ``max_gap``: what a one-sided scan sees apart (a cow's head, body and a leg, seen from behind)
@@ -189,9 +196,7 @@ def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> 
     gap *= step
     # Neighbouring nodes nearest to different pieces: a path between the pieces' nearest nodes.
     ends = []
-    for axis in range(3):
-        low = tuple(slice(0, -1) if a == axis else slice(None) for a in range(3))
-        high = tuple(slice(1, None) if a == axis else slice(None) for a in range(3))
+    for axis, (low, high) in enumerate(_neighbours()):
         index = np.nonzero(owner[low] != owner[high])
         shifted = tuple(k + (a == axis) for a, k in enumerate(index))
         ends.append(np.stack([np.ravel_multi_index(index, labels.shape), np.ravel_multi_index(shifted, labels.shape)], 1))
@@ -290,6 +295,82 @@ def smooth_maximum(a, b, width: float):
         return np.maximum(a, b)
     blend = np.maximum(width - np.abs(a - b), 0.0) / width
     return np.maximum(a, b) + 0.25 * width * blend * blend
+
+
+def smooth_band_edge(field, band, distance, step: float, *, width: float, reach: int, clearance: float):
+    """``field`` blurred where the edge of the band it was computed in crosses its zero level.
+
+    Past the rim of a seen patch the IMLS field, extrapolated, reads inside out to the band's edge,
+    where the far field reads outside: the zero set follows that edge (a union of balls) and
+    Marching Cubes turns the jump between the two fields into crust. There the field is replaced
+    by its Gaussian blur of ``width``, on the nodes within ``reach`` nodes of a crossing: the jump
+    becomes a slope over a few nodes and the zero set moves by about a node; where that would cut
+    the solid in two, the old values stay (:func:`_restore_cuts`).
+
+    Parameters
+    ----------
+    field : (r, r, r) float64
+        Signed, negative inside (changed in place).
+    band : (r, r, r) bool
+        Nodes whose value is the IMLS field's.
+    distance : (r, r, r) float64
+        Of each node to its nearest point (inf out of reach).
+    step : float
+        Grid step (fit-frame units).
+    width, clearance : float
+        Fit-frame units. Crossings where either node is within ``clearance`` of the points are
+        not smoothed, nor are nodes within a step of them: a band thinner than that (sparse
+        points) meets the far field at the surface itself, which must stay where the points say.
+    reach : int
+
+    Returns
+    -------
+    field : (r, r, r) float64
+    seam : (r, r, r) bool
+        The nodes smoothed.
+    """
+    from scipy import ndimage
+
+    inside = field < 0
+    clear = distance > clearance
+    crossing = np.zeros(field.shape, bool)
+    for low, high in _neighbours():
+        pair = (band[low] != band[high]) & (inside[low] != inside[high]) & clear[low] & clear[high]
+        crossing[low] |= pair
+        crossing[high] |= pair
+    if not crossing.any():
+        return field, crossing
+    seam = ndimage.binary_dilation(crossing, iterations=reach) & (distance > step)
+    original = field[seam]
+    field[seam] = ndimage.gaussian_filter(field, width / step)[seam]
+    _restore_cuts(field, seam, original)
+    return field, seam
+
+
+def _restore_cuts(field, seam, original) -> None:
+    """Put ``original`` (the values at ``seam`` before the blur) back, in place, on each connected
+    group of nodes the blur turned outside that touches two pieces of the solid: the blur rounds a
+    rim, but a neck only the band held (an object where it stands on a table seen from above) stays."""
+    from scipy import ndimage
+
+    opened = np.zeros(field.shape, bool)
+    opened[seam] = (original < 0) & (field[seam] >= 0)
+    if not opened.any():
+        return
+    pieces, _ = ndimage.label(field < 0)
+    groups, count = ndimage.label(opened)
+    touching = []
+    for low, high in _neighbours():
+        for group, piece in ((groups[low], pieces[high]), (groups[high], pieces[low])):
+            hit = (group > 0) & (piece > 0)
+            touching.append(np.stack([group[hit], piece[hit]], axis=1))
+    touching = np.unique(np.concatenate(touching), axis=0)
+    cuts = np.flatnonzero(np.bincount(touching[:, 0], minlength=count + 1) >= 2)
+    if cuts.size:
+        values = field[seam]
+        back = np.isin(groups[seam], cuts)
+        values[back] = original[back]
+        field[seam] = values
 
 
 def within(field, limit, step: float, *, rounding: float = 0.0) -> np.ndarray:

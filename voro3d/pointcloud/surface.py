@@ -8,7 +8,9 @@ needed, and the generalized winding number of the oriented points (Barill et al.
 closing holes smoothly (at a level that also suits open, one-sided scans: :func:`winding_level`).
 The field is sampled on a grid finer than the VoroMesh grid; Marching Cubes of it gives a dense
 closed proxy surface whose vertices are then projected onto the IMLS zero set, and the same
-grid answers inside/outside.
+grid answers inside/outside. Past the rim of a seen patch, where the band ends inside and the far
+field reads outside, the jump between the two is blurred over a node or two
+(:func:`~voro3d.pointcloud.fields.smooth_band_edge`).
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fields import (MIN_SUPPORT, GridSurface, bridge, closing, depth_limit, limit_reach, mesh_field, node_distance,
-                     smooth_maximum, within)
+                     smooth_band_edge, smooth_maximum, within)
 from .tuning import MAX_BRIDGE_GAP, SHEET_HUG, SHELL_ROUNDING_NODES
 
 __all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "shell_depths", "target_surface",
@@ -30,6 +32,21 @@ IMLS_NEIGHBOURS = 32
 ROBUST_PASSES = 2
 # The IMLS field is used within this many kernel widths of the points.
 IMLS_BAND = 3.0
+# Where the band's edge crosses the zero level (past the rim of a seen patch), the field is blurred
+# by a Gaussian of BAND_EDGE_BLUR_NODES grid steps within BAND_EDGE_REACH_NODES of the crossing, and
+# only where both nodes lie over BAND_EDGE_CLEARANCE_NODES from the points (fields.smooth_band_edge).
+# Off -> on, 2026-12-06, no normals, grid 64: range scans of the 12 benchmark meshes from 1 view CD
+# 210.3 -> 211.5, NC 0.738 -> 0.747, F1 0.373 -> 0.384; 3 views 45.34 -> 45.24, 0.896 -> 0.904, 0.681
+# -> 0.691; range_more's 16 from 1 view 446.6 -> 447.8, 0.764 -> 0.775, 0.348 -> 0.360, from 3 views
+# 68.93 -> 68.83, 0.917 -> 0.921, 0.653 -> 0.656; on a table 132.5 / 83.5 -> 134.7 / 84.6, NC 0.820 /
+# 0.904 -> 0.826 / 0.912, F1 0.334 / 0.464 -> 0.333 / 0.473; 6 views unchanged; all closed, one
+# piece. Rendered, the crust along the bunny's ears and feet (1 view) is gone. Without the clearance a
+# band under two nodes thick (sparse points) meets the far field at the surface itself: abc_00000001
+# from 3 views F1 0.377 -> 0.077. Blurred before the bridges, or without fields._restore_cuts, an ear
+# (cheburashka, 1 view) and a rocker arm on its table (3 views) came off.
+BAND_EDGE_BLUR_NODES = 1.0
+BAND_EDGE_REACH_NODES = 2
+BAND_EDGE_CLEARANCE_NODES = 2.0
 # The far field is (level - w) / |grad w|, a first-order distance to the winding number's level set,
 # the slope never under this (winding number per fit-frame unit): a guard against dividing by
 # nothing only (floors of 0.03, 0.1 and 0.3 gave the same benchmark figures to four digits). Scaled by
@@ -58,8 +75,10 @@ class TargetSurface(GridSurface):
         The oriented points the IMLS field is made of.
     widths : (n,) float64
         Kernel width of each point.
-    removed : (r, r, r) bool
-        Nodes whose side was flipped when unsupported pieces were removed.
+    held : (r, r, r) bool
+        Nodes whose grid value stands near the zero set (``inside`` does not re-test them against
+        the IMLS field, nor ``project`` move them onto it): where unsupported pieces were removed
+        (their side flipped), and where the band's edge was smoothed (``fields.smooth_band_edge``).
     areas : (n,) float64
         Area each point stands for (winding number weights).
     level : float
@@ -75,7 +94,7 @@ class TargetSurface(GridSurface):
     points: np.ndarray
     normals: np.ndarray
     widths: np.ndarray
-    removed: np.ndarray
+    held: np.ndarray
     areas: np.ndarray
     level: float
     dense: bool = False
@@ -94,7 +113,7 @@ class TargetSurface(GridSurface):
         step = 2.0 / (self.resolution - 1)
         value, index = self._field_at(queries)
         node = tuple(np.clip(np.rint(index), 0, self.resolution - 1).astype(np.int64).T)
-        close = (np.abs(value) < step) & ~self.removed[node]
+        close = (np.abs(value) < step) & ~self.held[node]
         tested = np.flatnonzero(close)
         if tested.size and self.dense:
             from ..queries import point_winding_number
@@ -118,12 +137,15 @@ class TargetSurface(GridSurface):
 
     def project(self, queries: np.ndarray) -> np.ndarray:
         """Points of the proxy mesh moved onto the IMLS zero set: one Newton step along the
-        field's mean normal, taken only where it moves the point less than a grid step (far from
-        the points, over filled holes, the proxy mesh is the surface)."""
+        field's mean normal, taken only where it moves the point less than a grid step and off
+        ``held`` nodes (far from the points, over filled holes, past rims, the proxy mesh is the
+        surface)."""
         queries = np.array(queries, np.float64)
         value, gradient, _ = imls(self.points, self.normals, self.widths, queries)
         move = -value[:, None] * gradient
-        small = np.linalg.norm(move, axis=1) < 2.0 / (self.resolution - 1)
+        node = tuple(np.clip(np.rint((queries + 1.0) * (0.5 * (self.resolution - 1))), 0,
+                             self.resolution - 1).astype(np.int64).T)
+        small = (np.linalg.norm(move, axis=1) < 2.0 / (self.resolution - 1)) & ~self.held[node]
         queries[small] += move[small]
         return queries
 
@@ -321,16 +343,21 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     slope = ndimage.map_coordinates(coarse_slope, index.T, order=1, mode="nearest")
     field[far] = ((level if hole_level is None else hole_level) - winding) / np.maximum(slope, FAR_FIELD_MIN_SLOPE)
     field = field.reshape((resolution,) * 3)
+    distance = distance.reshape(field.shape)
     limit = None
     if depth is not None:
-        limit = depth_limit(distance.reshape(field.shape), resolution, depth, nearest=nearest.reshape(field.shape))
+        limit = depth_limit(distance, resolution, depth, nearest=nearest.reshape(field.shape))
         field = within(field, limit, step, rounding=SHELL_ROUNDING_NODES * step)
         # Patches one viewpoint sees apart are one object; the limit must not cut the bridges.
         field = bridge(field, points, MAX_BRIDGE_GAP, min_support=min_support)
         limit = np.minimum(limit, field)
+    # After the bridges: smoothed first, the tips of two patches drew back and one gap grew past
+    # MAX_BRIDGE_GAP (cheburashka from 1 view, 0.241 -> 0.256: an ear cut off).
+    field, seam = smooth_band_edge(field, near.reshape(field.shape), distance, step, width=BAND_EDGE_BLUR_NODES * step,
+                                   reach=BAND_EDGE_REACH_NODES, clearance=BAND_EDGE_CLEARANCE_NODES * step)
     supported, vertices, triangles = mesh_field(field, points, min_support)
     return TargetSurface(supported, vertices, triangles, points, normals, widths,
-                         removed=np.sign(supported) != np.sign(field), areas=areas, level=level, dense=dense,
+                         held=(np.sign(supported) != np.sign(field)) | seam, areas=areas, level=level, dense=dense,
                          limit=limit)
 
 
