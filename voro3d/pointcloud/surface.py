@@ -40,10 +40,13 @@ IMLS_BAND = 3.0
 # -> 0.691; range_more's 16 from 1 view 446.6 -> 447.8, 0.764 -> 0.775, 0.348 -> 0.360, from 3 views
 # 68.93 -> 68.83, 0.917 -> 0.921, 0.653 -> 0.656; on a table 132.5 / 83.5 -> 134.7 / 84.6, NC 0.820 /
 # 0.904 -> 0.826 / 0.912, F1 0.334 / 0.464 -> 0.333 / 0.473; 6 views unchanged; all closed, one
-# piece. Rendered, the crust along the bunny's ears and feet (1 view) is gone. Without the clearance a
-# band under two nodes thick (sparse points) meets the far field at the surface itself: abc_00000001
-# from 3 views F1 0.377 -> 0.077. Blurred before the bridges, or without fields._restore_cuts, an ear
-# (cheburashka, 1 view) and a rocker arm on its table (3 views) came off.
+# piece. Rendered, the crust along the bunny's ears and feet (1 view) is gone. Blurs of 0.5 / 1 / 2
+# nodes, 12 meshes: 1 view NC 0.744 / 0.747 / 0.741, F1 0.379 / 0.384 / 0.382 (CD 210.8 / 211.5 /
+# 211.1); 3 views NC 0.900 / 0.904 / 0.900, F1 0.686 / 0.691 / 0.682 (45.28 / 45.24 / 45.40), all one
+# piece. Reach and clearance were not varied. Without the clearance a band under two nodes thick
+# (sparse points) meets the far field at the surface itself: abc_00000001 from 3 views F1 0.377 ->
+# 0.077. Blurred before the bridges, or without fields._restore_cuts, an ear (cheburashka, 1 view)
+# and a rocker arm on its table (3 views) came off.
 BAND_EDGE_BLUR_NODES = 1.0
 BAND_EDGE_REACH_NODES = 2
 BAND_EDGE_CLEARANCE_NODES = 2.0

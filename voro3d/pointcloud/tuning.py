@@ -304,7 +304,10 @@ MAX_FIELD_RESOLUTION = 160
 # lid at 20k, whose signs are 37% wrong and its level open (CD 5.1 -> 114).
 SHEET_POINTS_GATE = 0.15
 SHEET_SURFACE_GATE = 1.0
-SHEET_WIN = 0.65
+# SHEET_WIN 0.65 -> 0.7 (2026-12-06): the IMLS target's rims smoothed (surface.BAND_EDGE_BLUR_NODES),
+# the two-sheet plate of test_a_thin_plate_is_a_surface read 0.678 (0.643 before) and came out a slab
+# 0.2 thick. The benchmark clouds that reach this test (above) already take the shell at 0.65.
+SHEET_WIN = 0.7
 # Its offset: this many median spacings, at least a field step. (The noise estimate is no guide
 # there: it reads the two sides of the walls as noise.) 1.25 until the shell was closed back to the
 # points (SHEET_HUG): a wider ball then leaves fewer tunnels through a wall sampled at random, where
