@@ -110,13 +110,12 @@ class TargetSurface(GridSurface):
         query itself is tested: a wall thinner than the grid step, which the grid cannot hold,
         is still inside there. The test is the IMLS field, or, for ``dense`` points (several per
         grid step: their winding number is smooth and exact at walls a few points thick), the
-        winding number. Pieces removed as debris stay removed.
+        winding number. At ``held`` nodes (debris removed, rims smoothed) the grid decides.
         """
         queries = np.asarray(queries, np.float64)
         step = 2.0 / (self.resolution - 1)
         value, index = self._field_at(queries)
-        node = tuple(np.clip(np.rint(index), 0, self.resolution - 1).astype(np.int64).T)
-        close = (np.abs(value) < step) & ~self.held[node]
+        close = (np.abs(value) < step) & ~self._held_at(index)
         tested = np.flatnonzero(close)
         if tested.size and self.dense:
             from ..queries import point_winding_number
@@ -144,13 +143,16 @@ class TargetSurface(GridSurface):
         ``held`` nodes (far from the points, over filled holes, past rims, the proxy mesh is the
         surface)."""
         queries = np.array(queries, np.float64)
-        value, gradient, _ = imls(self.points, self.normals, self.widths, queries)
+        free = np.flatnonzero(~self._held_at((queries + 1.0) * (0.5 * (self.resolution - 1))))
+        value, gradient, _ = imls(self.points, self.normals, self.widths, queries[free])
         move = -value[:, None] * gradient
-        node = tuple(np.clip(np.rint((queries + 1.0) * (0.5 * (self.resolution - 1))), 0,
-                             self.resolution - 1).astype(np.int64).T)
-        small = (np.linalg.norm(move, axis=1) < 2.0 / (self.resolution - 1)) & ~self.held[node]
-        queries[small] += move[small]
+        small = np.linalg.norm(move, axis=1) < 2.0 / (self.resolution - 1)
+        queries[free[small]] += move[small]
         return queries
+
+    def _held_at(self, index: np.ndarray) -> np.ndarray:
+        """(q, 3) grid indices -> (q,) bool: whether the nearest node is ``held``."""
+        return self.held[tuple(np.clip(np.rint(index), 0, self.resolution - 1).astype(np.int64).T)]
 
 
 @dataclass
