@@ -632,7 +632,7 @@ def test_the_mesh_is_split_before_the_snap_to_the_detail_its_points_hold():
 def test_node_distance_matches_a_query_of_every_node():
     from scipy.spatial import cKDTree
 
-    from voro3d.pointcloud.fields import node_distance
+    from voro3d.pointcloud.nodes import node_distance
     from voro3d.sampling import grid_nodes
 
     points = np.random.default_rng(3).uniform(-0.6, 0.9, (400, 3))
@@ -649,7 +649,7 @@ def test_node_distance_with_a_reach_per_point_is_exact_within_each_nearest_point
     # exact distance and index (those beyond may be inf), in two queries instead of one at 0.3.
     from scipy.spatial import cKDTree
 
-    from voro3d.pointcloud.fields import node_distance
+    from voro3d.pointcloud.nodes import node_distance
     from voro3d.sampling import grid_nodes
 
     rng = np.random.default_rng(4)
@@ -1154,3 +1154,16 @@ def test_shell_depths_follow_the_seen_curvature_between_the_bounds():
         assert abs(np.median(depth) - expected) < 0.1 * expected
     plane = np.c_[rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)]
     assert np.all(shell_depths(plane, np.tile([0.0, 0.0, 1.0], (2000, 1)), 0.125, 0.04) == 0.125)
+
+
+def test_resample_is_trilinear_interpolation_at_the_finer_nodes():
+    from scipy import ndimage
+
+    from voro3d.pointcloud.surface import _resample
+    from voro3d.sampling import grid_nodes
+
+    coarse = np.random.default_rng(6).normal(size=(9, 9, 9))
+    for resolution in (17, 23):
+        index = (grid_nodes(resolution) + 1.0) * (0.5 * (coarse.shape[0] - 1))
+        expected = ndimage.map_coordinates(coarse, index.T, order=1, mode="nearest").reshape((resolution,) * 3)
+        np.testing.assert_allclose(_resample(coarse, resolution), expected, atol=1e-12)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "node_distance", "smooth_band_edge", "smooth_maximum", "supported_pieces", "within"]
+__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "smooth_band_edge", "smooth_maximum", "supported_pieces", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
@@ -21,9 +21,6 @@ MIN_SUPPORT = 20
 # The radius of a rod that bridges two pieces (bridge), as a share of the gap it spans (a thin rod
 # over what was not seen; not ablated: bridges are rare, tuning.MAX_BRIDGE_GAP).
 BRIDGE_WIDTH = 0.15
-# node_distance queries the nodes within the reach of this share of the points first, then the rest
-# near the points that reach further (speed only: the distances are the same).
-COMMON_REACH_SHARE = 0.99
 
 
 @dataclass
@@ -56,63 +53,6 @@ class GridSurface:
         return scene.compute_distance(o3d.core.Tensor(np.asarray(queries, np.float32))).numpy().astype(np.float64)
 
 
-def node_distance(tree, resolution: int, reach) -> tuple[np.ndarray, np.ndarray]:
-    """Distance from each node of a ``resolution^3`` grid over ``[-1, 1]^3`` to the nearest point,
-    where it is under that point's ``reach``.
-
-    Only nodes near an occupied voxel are queried: on a 62^3 grid around a 9k-point range scan
-    the kd-tree query of every node took 0.5 s, most of it on nodes far from all points. With a
-    reach per point, the nodes are first queried within the reach of nearly all points
-    (``COMMON_REACH_SHARE``), then those left, near the few points that reach further: one wide
-    kernel no longer widens the query of every node.
-
-    Parameters
-    ----------
-    tree : scipy.spatial.cKDTree
-        Of the points, fit frame.
-    resolution : int
-    reach : float or (n,) float64
-        Fit-frame units: one for all points, or each point's own.
-
-    Returns
-    -------
-    distance : (r, r, r) float64
-        Exact at every node within its nearest point's reach; elsewhere ``inf`` or exact.
-    nearest : (r, r, r) int64
-        The nearest point's index, ``tree.n`` where the distance is ``inf``.
-    """
-    reach = np.broadcast_to(np.asarray(reach, np.float64), (tree.n,))
-    common = float(np.quantile(reach, COMMON_REACH_SHARE))
-    distance = np.full(resolution**3, np.inf)
-    nearest = np.full(resolution**3, tree.n, np.int64)
-    _query_near(tree, resolution, np.ones(tree.n, bool), common, distance, nearest)
-    wide = reach > common
-    if wide.any():
-        _query_near(tree, resolution, wide, float(reach.max()), distance, nearest)
-    return distance.reshape((resolution,) * 3), nearest.reshape((resolution,) * 3)
-
-
-def _query_near(tree, resolution: int, chosen, reach: float, distance, nearest) -> None:
-    """Fill ``distance`` and ``nearest`` (flat, in place) by a query of the whole ``tree``, within
-    ``reach``, at the nodes within ``reach`` of the ``chosen`` points that are still ``inf``."""
-    from scipy import ndimage
-
-    from ..geometry import grid_voxel
-    from ..sampling import node_coordinates
-
-    step = grid_voxel(resolution)
-    voxel = np.clip(np.rint((tree.data[chosen] + 1.0) / step).astype(np.int64), 0, resolution - 1)
-    occupied = np.zeros((resolution,) * 3, bool)
-    occupied[tuple(voxel.T)] = True
-    # A node within reach of a point is within this many nodes of the point's own node per axis.
-    radius = int(np.ceil(reach / step)) + 1
-    candidates = ndimage.maximum_filter(occupied, size=2 * radius + 1, mode="constant").ravel()
-    candidates = np.flatnonzero(candidates & np.isinf(distance))
-    if candidates.size:
-        distance[candidates], nearest[candidates] = tree.query(node_coordinates(candidates, resolution),
-                                                               distance_upper_bound=reach, workers=-1)
-
-
 def limit_reach(resolution: int, depth):
     """How far :func:`depth_limit` reads the distance to the points: ``depth`` (one, or each
     point's) and the blur's reach of four nodes, beyond which only the side matters (fit-frame units)."""
@@ -122,11 +62,11 @@ def limit_reach(resolution: int, depth):
 
 
 def depth_limit(distance, resolution: int, depth, *, nearest=None) -> np.ndarray:
-    """Distance to the nearest point (:func:`node_distance`, reaching at least
+    """Distance to the nearest point (:func:`~voro3d.pointcloud.nodes.node_distance`, reaching at least
     :func:`limit_reach`) minus ``depth``, blurred by a Gaussian of one node so that the union of
     balls does not show on the far side of the shell.
 
-    ``depth`` is one for all points, or each point's (then ``nearest``, from :func:`node_distance`,
+    ``depth`` is one for all points, or each point's (then ``nearest``, from ``node_distance``,
     says whose depth a node reads)."""
     from scipy import ndimage
 
