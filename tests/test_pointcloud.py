@@ -1156,6 +1156,31 @@ def test_shell_depths_follow_the_seen_curvature_between_the_bounds():
     assert np.all(shell_depths(plane, np.tile([0.0, 0.0, 1.0], (2000, 1)), 0.125, 0.04) == 0.125)
 
 
+def test_shell_depths_vary_smoothly_along_an_edge_and_stay_shallow_there():
+    # A plate seen from above and around (its top and four sides): the curvature read across the
+    # rim gave depths that alternated from one point to the next there (a scalloped shell).
+    from scipy.spatial import cKDTree
+
+    from voro3d.pointcloud.surface import shell_depths
+
+    rng = np.random.default_rng(5)
+    points, normals = [np.c_[rng.uniform(-0.8, 0.8, (20000, 2)), np.zeros(20000)]], [np.tile([0.0, 0.0, 1.0], (20000, 1))]
+    for axis in range(2):
+        for sign in (-1.0, 1.0):
+            side = np.zeros((1500, 3))
+            side[:, axis], side[:, 1 - axis], side[:, 2] = sign * 0.8, rng.uniform(-0.8, 0.8, 1500), rng.uniform(-0.06, 0, 1500)
+            points.append(side)
+            normals.append(np.tile(np.eye(3)[axis] * sign, (1500, 1)))
+    points, normals = np.vstack(points), np.vstack(normals)
+    depth = shell_depths(points, normals, 0.125, 0.063)
+    rim = (np.abs(points[:, :2]).max(axis=1) > 0.75) & (points[:, 2] == 0.0)
+    _, neighbour = cKDTree(points[rim]).query(points[rim], k=6)
+    jump = np.abs(depth[rim][neighbour[:, 1:]] - depth[rim][:, None]).max(axis=1)
+    assert np.quantile(jump, 0.95) < 0.02  # 0.052 read point by point
+    assert np.median(depth[rim]) < 0.1  # shallower by the edge than the flat middle
+    assert np.all(depth[np.abs(points[:, :2]).max(axis=1) < 0.5] == 0.125)
+
+
 def test_resample_is_trilinear_interpolation_at_the_finer_nodes():
     from scipy import ndimage
 
