@@ -161,12 +161,13 @@ mesh fit's), 75 and 40, on 6 dev meshes x 4 conditions at grid 64: 75 costs CD 0
 (tangent-plane orientation with 16 neighbours, not the 30 of `pointcloud`), on the 8 organic and
 thingi32 dev meshes of `pointcloud` (on its CAD parts Open3D's orientation takes minutes at either
 setting: fandisk at 10^5 points, 437 s with 16) x the issue's six conditions, both methods in one run
-on a quiet machine (rerun 2026-12-06 with the band's edge smoothed past rims; 0.80x and 1.29x earlier
+on a quiet machine (rerun 2026-12-06 with the shell depths spread in space and the IMLS target's grid
+queries cut; 0.83x and 1.38x before, with the band's edge smoothed past rims; 0.80x and 1.29x earlier
 that day with the far field a distance, 0.79x and 1.35x before it, 0.84x and 1.30x on 2026-12-05).
-Summed, VoroMesh 247 s against 297 s (0.83x). One row was capped (thingi32_75655 with a density ramp:
-126 s, longer uncapped); without it 237 s against 171 s (1.38x). Per condition: 5k points 2.6x, 0.5%
-noise 2.5x, 1 and 3 views 3.9x and 2.7x (Open3D takes 0.5-2.6 s there, our fit alone 0.6-0.9 s), the
-density ramp 0.38x and 2% outliers 0.76x (Open3D's orientation of 50k-100k points).""",
+Summed, VoroMesh 222 s against 287 s (0.77x). One row was capped (thingi32_75655 with a density ramp:
+126 s, longer uncapped); without it 213 s against 161 s (1.32x). Per condition: 5k points 2.6x, 0.5%
+noise 2.5x, 1 and 3 views 3.2x and 2.3x (3.9x and 2.7x before; Open3D takes 0.5-2.6 s there, our fit
+alone 0.6-0.9 s), the density ramp 0.36x and 2% outliers 0.71x (Open3D's orientation of 50k-100k points).""",
     "pointcloud_dense38": """\
 Dense clean 100k-point clouds of all 38 dev meshes, VoroMesh only.""",
     "pointcloud_range": """\
@@ -186,9 +187,12 @@ first-order distance to their level set, met by the depth limit in a rounded cre
 210.3, 45.85 -> 45.34, NC 0.728 -> 0.738, 0.891 -> 0.896, F1 0.367 -> 0.373, 0.675 -> 0.681), then
 the jump where the IMLS band's edge meets the far field past a rim blurred over a node
 (`fields.smooth_band_edge`: no crust along the rims of one-sided scans; CD 210.3 -> 211.5, 45.34 ->
-45.24, NC 0.738 -> 0.747, 0.896 -> 0.904, F1 0.373 -> 0.384, 0.681 -> 0.691). Every row rerun after
-that, both methods and alpha wrap in one run: VoroMesh takes 2.11x Open3D's pipeline summed (1.97x
-the run before, Poisson's own time 7% up between the two), 65% of it the target surface.""",
+45.24, NC 0.738 -> 0.747, 0.896 -> 0.904, F1 0.373 -> 0.384, 0.681 -> 0.691), then the shell depths
+spread in space (`surface._spread_depths`: 1 view CD 211.5 -> 210.7, F1 0.384 -> 0.386; 3 and 6 views
+read closed and are unchanged) and the IMLS target's grid queries cut (the same surfaces). Every row
+rerun after that, both methods and alpha wrap in one run: VoroMesh takes 2.11x Open3D's pipeline
+summed (122 s against 58 s; the run before 156 s against 74 s, the same ratio on a faster machine),
+61% of it the target surface.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
@@ -196,11 +200,12 @@ The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both
 back to the points, `fields.closing`). Against Open3D's pipeline VoroMesh has the lower CD and the
 higher F1 in every condition, NC +0.071 / +0.057 / +0.009 from 1 / 3 / 6 views. Against alpha wrap
 (all three in one run, 2026-12-06, the far field no longer blurred, then a distance, then the band's
-edge smoothed past rims): 1 view CD 448 against 721 (464 before the orientation read the mean
-curvature; the screwdriver 393 -> 117; NC 0.753 -> 0.764 -> 0.775), 3 views 68.8 against 51.2 (65.7
-with the blur, 68.1 before the distance; NC 0.904 -> 0.914 -> 0.917 -> 0.921 against alpha wrap's
-0.902; without the lid 47.6 against 54.2), 6 views 4.09 against 6.50; VoroMesh 2.13x Open3D's
-pipeline summed. The closed shell
+edge smoothed past rims, rerun again with the shell depths spread in space): 1 view CD 447 against
+721 (464 before the orientation read the mean curvature; the screwdriver 393 -> 117; NC 0.753 ->
+0.764 -> 0.775 -> 0.776), 3 views 66.8 against 51.2 (68.8 before the depths were spread, 65.7 with
+the blur, 68.1 before the distance; NC 0.904 -> 0.914 -> 0.917 -> 0.921 -> 0.922 against alpha wrap's
+0.902; without the lid 45.4 against 54.2), 6 views 4.09 against 6.50; VoroMesh 2.05x Open3D's
+pipeline summed (2.13x before). The closed shell
 took the lid abc_00000007 from 6 views from an IMLS solid (CD 62.2, NC 0.730) to a thin solid
 following both sides of its wall (2.27, NC 0.923; alpha wrap 2.51); from 3 views, all from above,
 its hollow underside is never seen and the IMLS closure fills it (388 against alpha wrap's 5.7:
@@ -221,7 +226,9 @@ apart (`normals._part_flips`, 2026-12-05): 0 and 0 (CD 135.5 -> 130.8 and 93.7 -
 131.4 / 82.6, NC 0.802 -> 0.810 / 0.894 -> 0.899, F1 0.328 / 0.454; and with the far field a distance
 met by the depth limit in a rounded crease (the shell's back without terraces): CD 132.5 / 83.5, NC
 0.820 / 0.904, F1 0.334 / 0.464; and with the band's edge smoothed past rims (no crust): CD 134.7 /
-84.6, NC 0.826 / 0.912, F1 0.333 / 0.473. VoroMesh has the lower CD from
+84.6, NC 0.826 / 0.912, F1 0.333 / 0.473; and with the shell depths spread in space (the plate's rim
+no longer hangs in drips, `surface._spread_depths`): CD 122.7 / 74.0, NC 0.829 / 0.914, F1 0.339 /
+0.481. VoroMesh has the lower CD from
 both, Poisson the higher F1 (one sheet at the plate's top, whose unseen underside our shell guesses
 about 3x too deep) and NC from one view.""",
     "pointcloud_islands": """\
