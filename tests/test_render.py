@@ -51,6 +51,18 @@ def test_side_by_side_png_is_not_blank(tmp_path, sphere, bracket):
     assert image[: render.TITLE_BAND].std() > 5  # titles were drawn
 
 
+def test_a_long_title_is_set_smaller_to_fit_its_panel(tmp_path, sphere, bracket):
+    # At the full size this title is about twice as wide as its panel: cut at the edges, it ran
+    # into its neighbour's.
+    title = "organic_bunny.off: range scan 3 views (30000 pts), VoroMesh 64^3"
+    image = _pixels(render.render_meshes([sphere, bracket], tmp_path / "t.png", titles=[title, "short"], size=(320, 240),
+                                         backend="matplotlib"))
+    ink = np.nonzero((image[: render.TITLE_BAND].mean(axis=2) < 160).any(axis=0))[0]
+    first = ink[ink < 320]
+    assert first.size and first.min() > 3 and first.max() < 317  # inside its own panel
+    assert ink[ink >= 320].size and ink[ink >= 320].min() > 400  # "short" kept its size, centred
+
+
 def test_no_titles_no_title_band(tmp_path, sphere, no_open3d):
     out = render.render_meshes(sphere, tmp_path / "one.png", size=SMALL)
     assert _pixels(out).shape == (SMALL[1], SMALL[0], 3)

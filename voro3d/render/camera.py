@@ -14,7 +14,7 @@ import numpy as np
 from ..io import mesh_arrays
 
 __all__ = ["BACKENDS", "DEFAULT_COLOR", "FIELD_OF_VIEW", "MARGIN", "MAX_MATPLOTLIB_FACES", "SHADINGS",
-           "SPLIT_FRACTION", "SUPERSAMPLE", "TITLE_BAND", "UP_AXES", "VIEWS"]
+           "SPLIT_FRACTION", "SUPERSAMPLE", "TITLE_BAND", "TITLE_FILL", "TITLE_SIZE", "UP_AXES", "VIEWS"]
 
 BACKENDS = ("auto", "open3d", "matplotlib")
 SHADINGS = ("flat", "smooth")
@@ -31,6 +31,8 @@ SPLIT_FRACTION = 1.0 / 40.0  # split faces with an edge longer than this fractio
 FIELD_OF_VIEW = 30.0  # vertical, degrees: mild perspective, little distortion
 MARGIN = 0.08  # fraction of the image kept free around the fitted shapes (the corners stay background)
 TITLE_BAND = 40  # pixels above the panels for titles
+TITLE_SIZE = 13  # points; a title wider than TITLE_FILL of its panel is set smaller to fit
+TITLE_FILL = 0.96
 
 
 # -- validation

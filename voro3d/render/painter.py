@@ -8,7 +8,7 @@ import numpy as np
 
 from ..geometry import face_area_vectors as _triangle_normals, vertex_normals
 from ..io import atomic_path, to_triangle_mesh
-from .camera import MAX_MATPLOTLIB_FACES, SUPERSAMPLE, TITLE_BAND, _Camera, _lambert, _unit
+from .camera import MAX_MATPLOTLIB_FACES, SUPERSAMPLE, TITLE_BAND, TITLE_FILL, TITLE_SIZE, _Camera, _lambert, _unit
 
 __all__: list[str] = []
 
@@ -161,8 +161,16 @@ def _page(panels, titles, *, colorbar=None, dpi: int = 100):
         axes.imshow(panel, interpolation="nearest", aspect="auto")
         axes.set_axis_off()
         if title:
-            figure.text((i + 0.5) * width / total_w, (height + band / 2) / total_h, title, ha="center", va="center",
-                        fontsize=13, clip_on=True)
+            text = figure.text((i + 0.5) * width / total_w, (height + band / 2) / total_h, title, ha="center",
+                               va="center", fontsize=TITLE_SIZE, clip_on=True)
+            # A title wider than its panel is set smaller, not cut at the panel's edges (measured
+            # again each time: small type is wider than its size says).
+            renderer = figure.canvas.get_renderer()
+            for _ in range(4):
+                wide = text.get_window_extent(renderer=renderer).width
+                if wide <= TITLE_FILL * width:
+                    break
+                text.set_fontsize(text.get_fontsize() * 0.97 * TITLE_FILL * width / wide)
     if colorbar is not None:
         mappable, label, extend = colorbar
         axes = figure.add_axes(((width * len(panels) + 18) / total_w, 0.12 * height / total_h, 18 / total_w, 0.76 * height / total_h))
