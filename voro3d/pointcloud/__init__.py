@@ -73,9 +73,10 @@ the points define (``voro3d/pointcloud/``):
      0.5% and 1% noise: CD 3-15% lower (armadillo at 0.5%: +0.7%), NC up, fandisk's flat faces
      flat, for 1.5-3 s more a cloud.
    - *One-sided scans* (``surface.py``): the IMLS field (kernel width per point the larger of
-     0.75-1.5 local spacings and 4 noise deviations) near the points and the smoothed winding
-     number away from them, at the level that puts the solid behind the scanned side, held
-     within each point's shell depth (the radius of the seen surface's curvature, at most
+     0.75-1.5 local spacings and 4 noise deviations) near the points and the winding number
+     away from them (a distance to its level set), at the level that puts the solid behind the
+     scanned side, held within each point's shell depth (the radius of the seen surface's
+     curvature, made the least within two field nodes and averaged over them, at most
      ``SHELL_DEPTH``, 6% of the diagonal) of the points where they do not enclose it (a
      shell under the seen side instead of a block out to the box; ``fields.py``), its pieces
      less than ``MAX_BRIDGE_GAP`` apart (what one viewpoint sees apart) joined by thin rods
@@ -89,8 +90,8 @@ the points define (``voro3d/pointcloud/``):
      noise each do only one of these), a shell around the points is tried (``sheet_surface``: the
      blurred distance to the points at 1.6 spacings, cavities filled, then closed back to a quarter
      spacing from the points, a node thick where they are one-sided; no normals needed) and kept
-     when its misfit (mean distance points → surface + surface → points) is under 0.65 of the
-     target's. The wall then comes out as a thin solid that follows both of its sides (a cup lid,
+     when its misfit (mean distance points → surface + surface → points) is under 0.7 of the
+     target's (``SHEET_WIN``). The wall then comes out as a thin solid that follows both of its sides (a cup lid,
      abc_00000007, grid 64: CD 2.6 at 20k points and 2.3 from 6 range views, against 14.7 and
      62 before; alpha wrap 2.5). ``PointCloudInfo.target`` says which target was used.
 4. **Fit**: 75·g² samples (``CLOUD_SAMPLES_PER_FACE``; a mesh fit takes 150·g²) of the target
