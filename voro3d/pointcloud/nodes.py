@@ -51,8 +51,9 @@ def node_distance(tree, resolution: int, reach) -> tuple[np.ndarray, np.ndarray]
     wide = np.flatnonzero(reach > common)
     if wide.size:
         # A node left is within its nearest point's reach only if that point is wide, the nearest wide one.
-        nodes, coordinates = _nodes_near(tree.data[wide], resolution, float(reach[wide].max()), np.isinf(distance))
-        gap, which = cKDTree(tree.data[wide]).query(coordinates, distance_upper_bound=float(reach[wide].max()), workers=-1)
+        widest = float(reach[wide].max())
+        nodes, coordinates = _nodes_near(tree.data[wide], resolution, widest, np.isinf(distance))
+        gap, which = cKDTree(tree.data[wide]).query(coordinates, distance_upper_bound=widest, workers=-1)
         kept = np.flatnonzero(gap <= np.append(reach[wide], -1.0)[which])
         distance[nodes[kept]], nearest[nodes[kept]] = tree.query(coordinates[kept], workers=-1)
     return distance.reshape((resolution,) * 3), nearest.reshape((resolution,) * 3)
