@@ -3,7 +3,8 @@
 Each dev mesh (default ``../shared/data/dev``, else the bundled examples) is sampled into
 clouds *without normals* under the conditions of ``CONDITIONS``: sparse to dense clean clouds,
 Gaussian noise, a 20x density ramp, uniform outliers in the bounding box, a third of the surface
-missing. On each cloud:
+missing, range scans from 1, 3 and 6 viewpoints (``range_scan``), and one view of a depth camera's
+frame, ~300k points (``dense range scan 1 view``: only when named). On each cloud:
 
 * VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
   target surface, fit), timed with its split, and ``cloud_mesh`` (extraction, clean, fit to the
@@ -52,6 +53,7 @@ CONDITIONS = {
     "range scan 1 view": ("range", 30_000, 1),
     "range scan 3 views": ("range", 30_000, 3),
     "range scan 6 views": ("range", 30_000, 6),
+    "dense range scan 1 view": ("dense range", 300_000, 1),
 }
 # The virtual range scanner (make_cloud's "range" kind): a pinhole camera of this field of view and
 # pixel count looking at the shape's centre from RANGE_DISTANCE diagonals away; hits whose surface
@@ -59,6 +61,7 @@ CONDITIONS = {
 # and depth noise of RANGE_NOISE of the diagonal is added along the ray.
 RANGE_FOV = 40.0
 RANGE_PIXELS = (256, 256)
+DENSE_RANGE_PIXELS = (1600, 1200)  # a depth camera's frame: ~300k points of one view of a dev mesh
 RANGE_DISTANCE = 1.6
 RANGE_GRAZING = 75.0
 RANGE_NOISE = 0.0005
@@ -70,7 +73,8 @@ ORIENT_TIMEOUT = 120
 # 24's pipeline used 16, on organic clouds 0.8x the time (bunny at 10^5 points 7.9 -> 6.6 s), on CAD
 # parts as slow (fandisk at 10^5 points: 437 s).
 ORIENT_NEIGHBOURS = 30
-PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views")
+PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views",
+                       "dense range scan 1 view")
 
 
 def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
@@ -83,8 +87,8 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     kind, n, parameter = CONDITIONS[condition]
     vertices, triangles = mesh_arrays(mesh)
     rng = np.random.default_rng(seed + 1)
-    if kind == "range":
-        return range_scan(vertices, triangles, parameter, n, rng)
+    if kind in ("range", "dense range"):
+        return range_scan(vertices, triangles, parameter, n, rng, DENSE_RANGE_PIXELS if kind == "dense range" else RANGE_PIXELS)
     if kind == "ramp":
         points, _ = sample_surface((vertices, triangles), 4 * n, seed=seed)
         along = (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
@@ -104,8 +108,9 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     return points
 
 
-def range_scan(vertices, triangles, views: int, n: int, rng) -> np.ndarray:
-    """Points a range scanner sees from ``views`` viewpoints (at most ``n`` in all, drawn evenly).
+def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS) -> np.ndarray:
+    """Points a range scanner of ``pixels`` (width, height) sees from ``views`` viewpoints (at most ``n``
+    in all, drawn evenly).
 
     Viewpoints: one for 1; otherwise spread in longitude around the vertical at 30 degrees of
     elevation (3 views), or the six directions of a cube, turned at random. Each camera casts
@@ -129,7 +134,7 @@ def range_scan(vertices, triangles, views: int, n: int, rng) -> np.ndarray:
     for direction in directions:
         eye = centre + RANGE_DISTANCE * diagonal * direction
         up = np.array([0.0, 0.0, 1.0]) if abs(direction[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-        rays = scene.create_rays_pinhole(RANGE_FOV, centre.tolist(), eye.tolist(), up.tolist(), *RANGE_PIXELS).numpy()
+        rays = scene.create_rays_pinhole(RANGE_FOV, centre.tolist(), eye.tolist(), up.tolist(), *pixels).numpy()
         rays = rays.reshape(-1, 6)
         hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
         depth = hit["t_hit"].numpy()
@@ -603,7 +608,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=Path, default=SHARED / "dev" if (SHARED / "dev").is_dir() else None)
     parser.add_argument("--shapes", nargs="*", help="file names in --folder (default: all)")
-    parser.add_argument("--conditions", nargs="*", default=list(CONDITIONS), choices=list(CONDITIONS))
+    parser.add_argument("--conditions", nargs="*", default=[c for c in CONDITIONS if not c.startswith("dense")],
+                        choices=list(CONDITIONS))
     parser.add_argument("--grid", default="64", help="VoroMesh grid, or auto")
     parser.add_argument("--scans", action="store_true", help="also the real scans in ../shared/data/scans")
     parser.add_argument("--no-shapes", action="store_true", help="scans only")
@@ -622,6 +628,8 @@ def main():
     parser.add_argument("--poisson-escape", help="MAX_POISSON_ESCAPE for this run (share of the diagonal, or none: "
                         "never refused), the ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
+    parser.add_argument("--sheet-near", type=float, help="SHEET_NEAR for this run (inf: no such rule), the ablation "
+                        "beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
                         "(later files win; a row without Poisson or alpha wrap keeps the earlier file's)")
@@ -632,6 +640,7 @@ def main():
     if args.merge:
         merge(args.merge, args.out, args.folder)
         return
+    import voro3d.pointcloud.plan as plan_module
     import voro3d.pointcloud.reconstruct as reconstruct_module
     import voro3d.pointcloud.surface as surface_module
     import voro3d.pointcloud.targets as targets_module
@@ -648,6 +657,8 @@ def main():
         targets_module.MAX_POISSON_ESCAPE = np.inf if args.poisson_escape == "none" else float(args.poisson_escape)
     if args.dense_spacings is not None:
         reconstruct_module.DENSE_SPACINGS = args.dense_spacings
+    if args.sheet_near is not None:
+        plan_module.SHEET_NEAR = args.sheet_near
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -661,6 +672,7 @@ def main():
                 hole_level="default" if args.hole_level is None else args.hole_level,
                 poisson_escape=args.poisson_escape or "default",
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
+                sheet_near="default" if args.sheet_near is None else args.sheet_near,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:

@@ -193,6 +193,16 @@ read closed and are unchanged) and the IMLS target's grid queries cut (the same 
 rerun after that, both methods and alpha wrap in one run: VoroMesh takes 2.11x Open3D's pipeline
 summed (122 s against 58 s; the run before 156 s against 74 s, the same ratio on a faster machine),
 61% of it the target surface.""",
+    "pointcloud_dense_range": """\
+`bench_pointcloud.py --conditions "dense range scan 1 view"`: one view of a depth camera's frame
+(1600x1200 pixels, ~300k points, depth noise a quarter of the spacing) on the 12 meshes of
+`pointcloud_range`, both methods in one run on a quiet machine (bunny and fandisk rerun for the
+picture). Until `SHEET_NEAR` (2026-12-06) 11 of the 12 took the offset shell: the noise put the
+points past the shell's first gate, and the shell, hugging the points, wins on the unseen side; CD /
+NC / F1 596.7 / 0.782 / 0.098 (`--sheet-near inf --no-poisson`, same session). With it every cloud
+keeps its IMLS target: 277.2 / 0.756 / 0.414, against Open3D's 1745 / 0.637 / 0.322. VoroMesh takes
+1.46x Open3D's pipeline here (28 s a cloud; Open3D's orientation of 300k points is not capped), 68% of
+it the target surface.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
@@ -200,17 +210,19 @@ The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both
 back to the points, `fields.closing`). Against Open3D's pipeline VoroMesh has the lower CD and the
 higher F1 in every condition, NC +0.071 / +0.057 / +0.009 from 1 / 3 / 6 views. Against alpha wrap
 (all three in one run, 2026-12-06, the far field no longer blurred, then a distance, then the band's
-edge smoothed past rims, rerun again with the shell depths spread in space): 1 view CD 447 against
-721 (464 before the orientation read the mean curvature; the screwdriver 393 -> 117; NC 0.753 ->
-0.764 -> 0.775 -> 0.776), 3 views 66.8 against 51.2 (68.8 before the depths were spread, 65.7 with
+edge smoothed past rims, rerun again with the shell depths spread in space): 1 view CD 413 against
+721 (447 before `SHEET_NEAR`, 464 before the orientation read the mean curvature; the screwdriver 393
+-> 117; NC 0.753 -> 0.764 -> 0.775 -> 0.776 -> 0.780), 3 views 66.8 against 51.2 (68.8 before the depths were spread, 65.7 with
 the blur, 68.1 before the distance; NC 0.904 -> 0.914 -> 0.917 -> 0.921 -> 0.922 against alpha wrap's
 0.902; without the lid 45.4 against 54.2), 6 views 4.09 against 6.50; VoroMesh 2.05x Open3D's
 pipeline summed (2.13x before). The closed shell
 took the lid abc_00000007 from 6 views from an IMLS solid (CD 62.2, NC 0.730) to a thin solid
 following both sides of its wall (2.27, NC 0.923; alpha wrap 2.51); from 3 views, all from above,
 its hollow underside is never seen and the IMLS closure fills it (388 against alpha wrap's 5.7:
-a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one view keeps the shell
-(1475 -> 1350; its IMLS target reads 803). The other thin-walled CAD parts (abc_00000006,
+a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one view took the shell
+(1475 -> 1350) until `SHEET_NEAR` (2026-12-06, its row rerun with all three methods): the points lie
+6.1x as far from it as from the IMLS target, which it now keeps (817, NC 0.811, F1 0.464 against the
+shell's 0.036; alpha wrap 1027). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
 against 71-74).""",
     "scenes": """\

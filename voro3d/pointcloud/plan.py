@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..geometry import grid_voxel
-from .tuning import HEAVY_NOISE, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN
+from .tuning import HEAVY_NOISE, SHEET_NEAR, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN
 
 __all__ = ["CloudPlan", "as_plan", "NORMALS", "SWITCHES", "TARGETS"]
 
@@ -123,12 +123,18 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     """The offset shell of the points when it fits them much better than ``target``, else None.
 
     Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
-    ``SHEET_SURFACE_GATE``); kept when its :func:`_misfit` is under ``SHEET_WIN`` times the target's.
-    ``distance``: the distance of ``points`` (or of an even share of them) to ``target``, when already measured.
+    ``SHEET_SURFACE_GATE``); kept when the points lie within ``SHEET_NEAR`` times as far from it as
+    from the target, and its misfit (mean distance points -> surface plus surface -> points) is under
+    ``SHEET_WIN`` times the target's.
+    ``distance``: the distance of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point
+    to ``target``, when already measured.
     """
     from scipy.spatial import cKDTree
 
-    to_target = float(np.mean(target.distance(points) if distance is None else distance))
+    from .preprocess import check_stride
+
+    sample = points[::check_stride(len(points))]
+    to_target = float(np.mean(target.distance(sample) if distance is None else distance))
     if to_target <= SHEET_POINTS_GATE * spacing:
         return None
     tree = cKDTree(points)
@@ -136,7 +142,10 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     if strays <= SHEET_SURFACE_GATE * spacing:
         return None
     sheet = sheet_target(points, spacing, resolution)
-    return sheet if _misfit(sheet, points, tree) < SHEET_WIN * (to_target + strays) else None
+    to_sheet = float(np.mean(sheet.distance(sample)))
+    if to_sheet > SHEET_NEAR * to_target:
+        return None
+    return sheet if to_sheet + _surface_to_points(sheet, tree) < SHEET_WIN * (to_target + strays) else None
 
 
 def sheet_target(points, spacing: float, resolution: int):
@@ -152,8 +161,3 @@ def _surface_to_points(target, tree, n_samples: int = 20_000) -> float:
 
     samples, _ = sample_surface((target.vertices, target.triangles), n_samples, seed=0)
     return float(np.mean(tree.query(samples, workers=-1)[0]))
-
-
-def _misfit(target, points, tree) -> float:
-    """Mean distance from the points to the target plus from the target to the points."""
-    return float(np.mean(target.distance(points))) + _surface_to_points(target, tree)
