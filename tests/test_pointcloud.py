@@ -668,6 +668,32 @@ def test_node_distance_with_a_reach_per_point_is_exact_within_each_nearest_point
     assert found.sum() < np.isfinite(node_distance(tree, 33, 0.3)[0]).sum()  # fewer nodes queried
 
 
+def test_node_distance_beyond_the_reach_is_within_a_cell_of_the_nearest_point():
+    """Up to ``far`` the distance is to one point of each ``FAR_CELL_NODES`` cell: never nearer than
+    the nearest point, at most a cell's diagonal further; within the reach it stays exact."""
+    from scipy.spatial import cKDTree
+
+    from voro3d.pointcloud.nodes import FAR_CELL_NODES, node_distance
+    from voro3d.sampling import grid_nodes
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-0.8, 0.8, (40_000, 2))
+    points = np.c_[xy, 0.2 * np.sin(3.0 * xy[:, 0])]  # a dense sheet: many points in a cell
+    tree = cKDTree(points)
+    step = 2.0 / 32
+    distance, nearest = (a.ravel() for a in node_distance(tree, 33, 1.5 * step, 0.4))
+    expected, index = tree.query(grid_nodes(33))
+    within, beyond = expected < 1.5 * step, (expected > 2.0 * step) & (expected < 0.35)
+    assert within.sum() > 0 and beyond.sum() > 1000
+    np.testing.assert_array_equal(distance[within], expected[within])
+    np.testing.assert_array_equal(nearest[within], index[within])
+    excess = distance[beyond] - expected[beyond]
+    assert excess.min() >= 0.0 and excess.max() <= FAR_CELL_NODES * np.sqrt(3.0) * step
+    np.testing.assert_allclose(np.linalg.norm(points[nearest[beyond]] - grid_nodes(33)[beyond], axis=1), distance[beyond])
+    assert len(np.unique(nearest[beyond])) < 0.5 * len(points)  # read from fewer points
+    assert np.isinf(distance[expected > 0.45]).all()
+
+
 def _two_balls(gap: float, small: int = 500):
     """A 41^3 field of two balls of radius 0.3 ``gap`` apart along x, and points on them (``small``
     on the second)."""

@@ -220,7 +220,8 @@ def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
 
     from ..geometry import grid_voxel
 
-    distance, _ = node_distance(cKDTree(points), resolution, limit_reach(resolution, offset))
+    # Read through the depth limit's blur alone: exact within a node (FAR_CELL_NODES beyond).
+    distance, _ = node_distance(cKDTree(points), resolution, grid_voxel(resolution), limit_reach(resolution, offset))
     limit = depth_limit(distance, resolution, offset)
     field = within(limit.copy(), limit, grid_voxel(resolution))
     half_thickness = min(grid_voxel(resolution), offset)
@@ -325,10 +326,11 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
 
     step = grid_voxel(resolution)
     tree = cKDTree(points)
-    # The distances for the band (nodes within IMLS_BAND kernel widths of their nearest point) and
-    # the depth limit, each point reaching as far as either needs.
-    reach = np.maximum(IMLS_BAND * widths, 0.0 if depth is None else limit_reach(resolution, depth)) + step
-    distance, nearest = (a.ravel() for a in node_distance(tree, resolution, reach))
+    # The distances for the band (nodes within IMLS_BAND kernel widths of their nearest point),
+    # exact, and for the depth limit, within a fraction of the node its blur spans.
+    reach = IMLS_BAND * widths + step
+    far = None if depth is None else float(np.max(limit_reach(resolution, depth))) + step
+    distance, nearest = (a.ravel() for a in node_distance(tree, resolution, reach, far))
     near = np.isfinite(distance)
     near[near] = distance[near] <= IMLS_BAND * widths[nearest[near]]
     field = np.empty(resolution**3)
