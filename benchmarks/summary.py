@@ -196,13 +196,17 @@ summed (122 s against 58 s; the run before 156 s against 74 s, the same ratio on
     "pointcloud_dense_range": """\
 `bench_pointcloud.py --conditions "dense range scan 1 view"`: one view of a depth camera's frame
 (1600x1200 pixels, ~300k points, depth noise a quarter of the spacing) on the 12 meshes of
-`pointcloud_range`, both methods in one run on a quiet machine (bunny and fandisk rerun for the
-picture). Until `SHEET_NEAR` (2026-12-06) 11 of the 12 took the offset shell: the noise put the
-points past the shell's first gate, and the shell, hugging the points, wins on the unseen side; CD /
-NC / F1 596.7 / 0.782 / 0.098 (`--sheet-near inf --no-poisson`, same session). With it every cloud
-keeps its IMLS target: 277.2 / 0.756 / 0.414, against Open3D's 1745 / 0.637 / 0.322. VoroMesh takes
-1.46x Open3D's pipeline here (28 s a cloud; Open3D's orientation of 300k points is not capped), 68% of
-it the target surface.""",
+`pointcloud_range`, both methods in one run on a quiet machine. Until `SHEET_NEAR` (2026-12-06) 11
+of the 12 took the offset shell (the noise put the points past the shell's first gate, and the
+shell, hugging the points, wins on the unseen side): CD / NC / F1 596.7 / 0.782 / 0.098
+(`--sheet-near inf --no-poisson`, same session); with it every cloud keeps its IMLS target, 277.2 /
+0.756 / 0.414, 1.46x Open3D's pipeline (its orientation of 300k points is not capped). Then the far
+distances of the IMLS target read from one point per quarter-node cell (`nodes.FAR_CELL_NODES`: the
+surface stage 225 -> 139 s, 1.08x, CD 277.7), then the kernels held to a third of the field's node
+(`surface.target_surface`; VoroMesh side rerun, Open3D's from the run before): 277.6 / 0.758 /
+0.418, 1.12x. At 10^6 points (the bunny, 2600x1950 pixels, not in the table) the kernels were a
+tenth of a node and the shell won again (F1 0.059); now 68 s and 1.38 GB peak against Open3D's
+102 s, CD 820 / NC 0.784 / F1 0.419 against 1275 / 0.675 / 0.413.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on

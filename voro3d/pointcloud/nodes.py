@@ -26,7 +26,7 @@ COMMON_REACH_SHARE = 0.99
 FAR_CELL_NODES = 0.25
 
 
-def node_distance(tree, resolution: int, reach, far=None) -> tuple[np.ndarray, np.ndarray]:
+def node_distance(tree, resolution: int, reach, *, far=None) -> tuple[np.ndarray, np.ndarray]:
     """Distance from each node of a ``resolution^3`` grid over ``[-1, 1]^3`` to the nearest point,
     where it is under that point's ``reach``; beyond, up to ``far``, within ``FAR_CELL_NODES``
     times sqrt(3) nodes of it.
