@@ -287,7 +287,8 @@ def _colour_error(mesh, source, low, high):
     return float(np.abs(np.asarray(mesh.vertex_colors)[nearest] - position_colours(truth, low, high)).mean())
 
 
-def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=True, with_alpha_wrap=False):
+def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=True, with_alpha_wrap=False,
+                  pictured=PICTURED):
     from voro3d.io import mesh_arrays, save_mesh
     from voro3d.metrics import evaluate
     from voro3d.pointcloud import cloud_mesh, colored_mesh, reconstruct_points
@@ -329,7 +330,7 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
     if with_alpha_wrap:
         mesh, seconds = alpha_wrap(points)
         row["alpha_wrap"] = dict(evaluate(mesh, source), seconds=seconds, pieces=_pieces(mesh))
-    if name in PICTURED and (condition in PICTURED_CONDITIONS or condition == COLOURED):
+    if name in pictured and (condition in PICTURED_CONDITIONS or condition == COLOURED):
         for method, mesh in meshes.items():
             save_mesh(mesh, picture_dir / f"{Path(name).stem}_{condition.replace(' ', '_')}_{method}.ply")
     return row if with_poisson else dict(row, poisson={})
@@ -508,8 +509,8 @@ def write(out: Path, meta, rows, scans):
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
-def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
-    """Rows of input / VoroMesh / Poisson for the pictured shapes and conditions; one row per scan."""
+def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path, pictured=PICTURED):
+    """Rows of input / VoroMesh / Poisson for the ``pictured`` shapes and conditions; one row per scan."""
     import sys
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -527,7 +528,7 @@ def pictures(picture_dir: Path, rows, scans, folder: Path, out: Path):
 
     pictured = [(r, [picture_dir / f"{Path(r['shape']).stem}_{r['condition'].replace(' ', '_')}_{m}.ply"
                      for m in ("voromesh", "poisson")])
-                for r in rows if r["shape"] in PICTURED and r["condition"] in PICTURED_CONDITIONS]
+                for r in rows if r["shape"] in pictured and r["condition"] in PICTURED_CONDITIONS]
     if not complete(out.with_suffix(".png"), [files for _, files in pictured]):
         pictured = []
     figure = []
@@ -595,11 +596,12 @@ def merge(sources, out: Path, folder: Path):
     for run in runs:
         for entry in _runs(run["meta"]):
             listed.setdefault(entry["date"], entry)
-    meta = dict(runs[0]["meta"], runs=list(listed.values()), orient_neighbours=min(baselines, default=30))
+    pictured = sorted({shape for run in runs for shape in run["meta"].get("pictured", PICTURED)})
+    meta = dict(runs[0]["meta"], runs=list(listed.values()), orient_neighbours=min(baselines, default=30), pictured=pictured)
     rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
     scans = [scans[k] for k in sorted(scans)]
     write(out, meta, rows, scans)
-    pictures(ROOT / "out" / "bench_pointcloud", rows, scans, folder, out)
+    pictures(ROOT / "out" / "bench_pointcloud", rows, scans, folder, out, pictured)
     print(f"wrote {out.with_suffix('.md')}")
 
 
@@ -630,6 +632,7 @@ def main():
     parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
     parser.add_argument("--sheet-near", type=float, help="SHEET_NEAR for this run (inf: no such rule), the ablation "
                         "beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--pictured", nargs="+", default=list(PICTURED), help="shapes whose meshes the picture shows")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
                         "(later files win; a row without Poisson or alpha wrap keeps the earlier file's)")
@@ -673,7 +676,7 @@ def main():
                 poisson_escape=args.poisson_escape or "default",
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
                 sheet_near="default" if args.sheet_near is None else args.sheet_near,
-                orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson)
+                orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]
@@ -682,7 +685,7 @@ def main():
         source = load_mesh(path)
         for condition in args.conditions:
             row = run_condition(source, path.name, condition, grid, picture_dir, with_poisson=not args.no_poisson,
-                                with_alpha_wrap=args.alpha_wrap)
+                                with_alpha_wrap=args.alpha_wrap, pictured=args.pictured)
             rows.append(row)
             print(json.dumps({k: row[k] for k in ("shape", "condition")} |
                              {m: {k: row[m].get(k) for k in ("chamfer_x1e5", "nc", "f1", "pieces", "watertight",
@@ -696,7 +699,7 @@ def main():
         meta["load_after"] = load()
         write(args.out, meta, rows, scans)
     if not args.no_poisson:  # the pictures put both methods side by side (--merge draws them)
-        pictures(picture_dir, rows, scans, args.folder, args.out)
+        pictures(picture_dir, rows, scans, args.folder, args.out, args.pictured)
     print(f"wrote {args.out.with_suffix('.md')}")
 
 

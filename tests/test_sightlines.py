@@ -89,3 +89,20 @@ def test_the_carved_target_is_the_base_less_the_carved_nodes():
     queries = np.array([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0], [-0.9, 0.0, 0.0], [0.9, 0.0, 0.0], [-0.2, 0.3, 0.1]])
     assert target.inside(queries).tolist() == [True, False, False, False, True]
     assert np.allclose(target.distance(queries), base.distance(queries), atol=1e-6)
+
+
+def test_a_carve_that_parts_the_solid_says_so():
+    from voro3d.pointcloud.fields import supported_regions
+    from voro3d.pointcloud.sightlines import _parted
+
+    # A capsule along z with points on both round ends: carved through its middle it is two
+    # supported pieces, an end carved off leaves one.
+    capsule = trimesh.creation.capsule(height=1.2, radius=0.3, count=[24, 24])
+    base = PoissonSurface(np.asarray(capsule.vertices), np.asarray(capsule.faces), resolution=128)
+    points = base.vertices[np.abs(base.vertices[:, 2]) > 0.7]
+    z = np.linspace(-1.0, 1.0, 49)[None, None, :] + np.zeros((49, 49, 1))
+    assert _parted(base, np.abs(z) < 0.1, points)
+    assert not _parted(base, z > 0.8, points)
+    assert not _parted(base, np.zeros_like(z, bool), points)
+    labels, supported = supported_regions(np.abs(z) > 2.0, points)  # no solid: nothing supported
+    assert not supported.any() and labels.max() == 0

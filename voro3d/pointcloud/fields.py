@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "smooth_band_edge", "smooth_maximum", "supported_pieces", "within"]
+__all__ = ["GridSurface", "bridge", "closing", "depth_limit", "limit_reach", "mesh_field", "smooth_band_edge", "smooth_maximum", "supported_pieces", "supported_regions", "within"]
 
 # A piece of surface nearest to fewer points than this share of the best-supported piece's is
 # debris: a blob made by stray points or a noisy patch.
@@ -117,18 +117,10 @@ def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> 
 
     original = field
     resolution = field.shape[0]
-    labels, count = ndimage.label(field < 0)
-    if count <= 1:
-        return field
-    corner = np.clip(np.floor((points + 1.0) * (0.5 * (resolution - 1))).astype(np.int64), 0, resolution - 2)
-    label = np.zeros(len(points), np.int64)
-    for offset in np.ndindex(2, 2, 2):
-        label = np.maximum(label, labels[tuple((corner + offset).T)])
-    support = np.bincount(label, minlength=count + 1)
-    support[0] = 0
-    supported = support >= max(min_support, SUPPORT_SHARE * support.max())
+    labels, supported = supported_regions(field < 0, points, min_support=min_support)
     if supported.sum() <= 1:
         return field
+    count = len(supported) - 1
     step = 2.0 / (resolution - 1)
     gap, nearest = ndimage.distance_transform_edt(~supported[labels], return_indices=True)
     nearest = np.ravel_multi_index(tuple(nearest), labels.shape)
@@ -167,6 +159,39 @@ def bridge(field, points, max_gap: float, *, min_support: int = MIN_SUPPORT) -> 
         field = field.copy() if field is original else field
         field[box] = np.minimum(field[box], rod)
     return field
+
+
+def supported_regions(solid, points, *, min_support: int = MIN_SUPPORT):
+    """The connected regions of a solid on a grid over ``[-1, 1]^3`` and which the points support.
+
+    A point supports the region of the inside corner of its grid cell; as in
+    :func:`supported_pieces`, a region with fewer than ``min_support`` points or ``SUPPORT_SHARE``
+    of the best-supported one's is not supported.
+
+    Parameters
+    ----------
+    solid : (r, r, r) bool
+    points : (n, 3) float64
+        Fit frame.
+
+    Returns
+    -------
+    labels : (r, r, r) int32
+        ``scipy.ndimage.label``'s, 0 outside the solid.
+    supported : (regions + 1,) bool
+        By label; the background's (0) False.
+    """
+    from scipy import ndimage
+
+    resolution = solid.shape[0]
+    labels, count = ndimage.label(solid)
+    corner = np.clip(np.floor((points + 1.0) * (0.5 * (resolution - 1))).astype(np.int64), 0, resolution - 2)
+    label = np.zeros(len(points), np.int64)
+    for offset in np.ndindex(2, 2, 2):
+        label = np.maximum(label, labels[tuple((corner + offset).T)])
+    support = np.bincount(label, minlength=count + 1)
+    support[0] = 0
+    return labels, support >= max(min_support, SUPPORT_SHARE * support.max())
 
 
 def closing(field, offset: float, *, hug: float, half_thickness: float) -> np.ndarray:
