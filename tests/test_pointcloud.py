@@ -12,7 +12,7 @@ from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio
 from voro3d.pointcloud.fields import smooth_band_edge, smooth_maximum
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.surface import sheet_surface, target_surface, winding_level
-from voro3d.pointcloud.tuning import MAX_POISSON_ESCAPE, SHELL_DEPTH
+from voro3d.pointcloud.tuning import CLOSED_LEVEL, MAX_POISSON_ESCAPE, SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
 from voro3d.queries import point_areas
 from voro3d.sampling import sample_surface
@@ -806,6 +806,15 @@ def test_a_poisson_flap_is_told_from_a_cap(sphere_cloud):
     assert poisson_surface(points[capped], normals[capped], 7).escape(points[capped]) < MAX_POISSON_ESCAPE
     bowl = points[:, 2] < 0.0  # an open bowl: Poisson runs off past the rim
     assert poisson_surface(points[bowl], normals[bowl], 7).escape(points[bowl]) > MAX_POISSON_ESCAPE
+
+
+def test_a_refused_poisson_target_is_reported(sphere_cloud, capsys):
+    points, _ = sphere_cloud
+    cut = points[points[:, 2] < 0.4 * np.abs(points).max()]  # closed but for a hole as wide as the sphere
+    _, _, info = reconstruct_points(cut, grid=24, steps=20, progress=True)
+    assert info.plan.target == "imls" and info.level > CLOSED_LEVEL
+    line = next(line for line in capsys.readouterr().err.splitlines() if line.startswith("voro3d target"))
+    assert "Poisson refused: its surface ran 13% of the diagonal out of the points' box" in line
 
 
 def test_sheet_surface_wraps_a_thin_plate_and_fills_a_cavity():

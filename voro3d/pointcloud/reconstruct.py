@@ -384,9 +384,10 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     depth = poisson_depth(target_grid, stats.median_spacing)
     resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
     filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
-    kind, target, distance = build_target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
-                                     depth=depth, resolution=resolution, filtered=filtered == "on",
-                                     dense=dense and denoise == "off", hull=plan.hull == "on", helper=helper)
+    kind, target, distance, why = build_target(plan.target, framed, given, normals, widths, stats, level=level,
+                                               closed=closed, depth=depth, resolution=resolution,
+                                               filtered=filtered == "on", dense=dense and denoise == "off",
+                                               hull=plan.hull == "on", helper=helper)
     if kind == "sheet":
         framed = given
     if kind != "poisson":
@@ -399,7 +400,9 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     past = reach_past_hull(target, framed, resolution) if progress and plan.hull == "off" and kind != "sheet" else 0.0
     reach = (f"; its closure reaches {past / 2:.0%} of the diagonal past the points' convex hull (plan hull on cuts "
              "it back: scans from a few viewpoints)" if past else "")
-    report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + why for why in getattr(target, 'carves', []))}"
+    notes = [why] if why else []
+    notes += getattr(target, "carves", [])
+    report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + note for note in notes)}"
                  f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
                  f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}{reach}", seconds["surface"])
 

@@ -24,7 +24,7 @@ __all__ = ["build_target", "check_coverage"]
 
 def build_target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
                  resolution: int, filtered: bool, dense: bool, hull: bool, helper):
-    """``(kind, target, distance)``: the target surface of a plan's ``target`` field.
+    """``(kind, target, distance, why)``: the target surface of a plan's ``target`` field.
 
     Parameters
     ----------
@@ -55,14 +55,17 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
     distance : (m,) float64 or None
         Of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point of ``given`` to the
         target, where the rule measured it.
+    why : str
+        Why a closed cloud's target is not Poisson, for the plan's report; empty otherwise.
     """
     if choice == "sheet":
-        return "sheet", sheet_target(given, stats.median_spacing, resolution), None
-    target = None
+        return "sheet", sheet_target(given, stats.median_spacing, resolution), None, ""
+    target, why = None, ""
     if choice == "poisson" or (choice == "auto" and closed):
         target = poisson_surface(points, normals, depth, filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None,
                                  helper=helper)
-        if choice == "auto" and target.escape(points) > MAX_POISSON_ESCAPE:
+        escape = target.escape(points) if choice == "auto" else 0.0
+        if escape > MAX_POISSON_ESCAPE:
             # A flap: normals that disagree across a thin wall. The local IMLS field does not reach out.
             # (Building it beside the solve, in a second process, lost: on this 2-CPU machine a busy
             # second process halves the first's speed, Open3D's solve of 5k points 0.9 -> 1.9 s beside
@@ -71,7 +74,7 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
             # on 59 Poisson targets of the 12 benchmark meshes (3 and 6 views, a third missing, 5k,
             # 1% noise), depth 6 on 6000 of the points took 0.28-0.65 s a cloud, 24.5 s in all, to
             # spare the 15.2 s of the 6 refused solves, and refused one kept (homer from 3 views).)
-            target = None
+            target, why = None, f"Poisson refused: its surface ran {escape:.0%} of the diagonal out of the points' box"
         else:
             target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
     kind = "poisson" if target is not None else "imls"
@@ -86,8 +89,8 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
     if choice == "auto" and not target.dense:
         distance = target.distance(given[::check_stride(len(given))])
         sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance)
-        return ("sheet", sheet, None) if sheet is not None else (kind, target, distance)
-    return kind, target, None
+        return ("sheet", sheet, None, why) if sheet is not None else (kind, target, distance, why)
+    return kind, target, None, why
 
 
 def _shell_depth(points, normals, resolution: int) -> np.ndarray:
