@@ -146,6 +146,17 @@ against 352) for NC and F1; a third missing loses the closure's continuation pas
 against 451). No measure of the cloud told the last apart from 3-view scans, so `auto` leaves it off.
 The picture (`--pictures-only --pictures SHAPE:CONDITION ...`): the arm's hand, a ball without the
 cut, a block with it; the lid's underside; the cut-off back of a third-missing cow flattened.""",
+    "plan_views": """\
+`benchmarks/bench_plan.py --rules views`: the plan the README gives for scans from a few viewpoints,
+the IMLS target cut back to the hull (`target imls, hull on`), against `auto` on all 38 dev meshes x
+the range conditions and a third missing (2026-12-06, one run). From 3 views it pays on 32 of 38
+(CD 55.0 -> 23.9, NC 0.915 -> 0.934, F1 0.669 -> 0.710, 0.66x the time: no Poisson solve): `auto`'s
+Poisson swells under the undersides no view saw (the statue thingi32_78671's base: 59.8 -> 3.6; homer
+105 -> 11). Where the views cover the object (6 views: 2.58 -> 7.52, NC -0.013) or a part was cut away
+(342 -> 436, NC -0.029; the elephant's head flattened) Poisson's closure wins, and the points do not say
+which they are (the winding level, Poisson's escape out of the box, depth noise: `pointcloud_range_rest`),
+so `auto` keeps Poisson for clouds that enclose a volume; from 1 view (IMLS either way) the hull trades
+CD (369 -> 392) for NC and F1 (0.758 -> 0.775, 0.381 -> 0.403).""",
     "colours": """\
 `benchmarks/bench_colours.py`: a cloud's colours on its mesh, by position (smooth) and by |normal|
 (fast), voro3d with its mesh split flat to about one vertex per point, without the split, and

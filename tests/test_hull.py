@@ -72,3 +72,4 @@ def test_the_report_says_what_the_hull_would_cut(capsys):
         reconstruct_points(points, grid=32, steps=5, plan={"target": "poisson", "hull": hull}, progress=True)
         err = capsys.readouterr().err
         assert ("past the points' convex hull (plan hull on cuts it back" in err) is said, err
+        assert ("and target imls with it closes it flat: scans from a few viewpoints" in err) is said, err

@@ -398,8 +398,9 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     seconds["surface"] = time.perf_counter() - start
     # What the plan's hull would cut, read for the report only.
     past = reach_past_hull(target, framed, resolution) if progress and plan.hull == "off" and kind != "sheet" else 0.0
+    flat = ", and target imls with it closes it flat" if kind == "poisson" else ""
     reach = (f"; its closure reaches {past / 2:.0%} of the diagonal past the points' convex hull (plan hull on cuts "
-             "it back: scans from a few viewpoints)" if past else "")
+             f"it back{flat}: scans from a few viewpoints)" if past else "")
     notes = [why] if why else []
     notes += getattr(target, "carves", [])
     report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + note for note in notes)}"
