@@ -133,8 +133,8 @@ def carve_sightlines(target, points, normals, spacing: float, resolution: int):
 
 
 def _parted(target, carved, points) -> bool:
-    """Whether the target's solid at the nodes of the ``carved`` grid is in more pieces that the
-    points support (:func:`~voro3d.pointcloud.fields.supported_regions`) without them than with."""
+    """Whether taking the ``carved`` nodes out of the target's solid (at the nodes of their grid)
+    leaves it in more pieces that the points support (:func:`~voro3d.pointcloud.fields.supported_regions`)."""
     from ..sampling import grid_nodes
     from .fields import supported_regions
 
