@@ -77,7 +77,7 @@ def test_a_closed_target_that_hides_no_point_is_kept():
     points = _scan(vertices, triangles, np.vstack([np.eye(3), -np.eye(3)]) @ turn.T, pixels=100)
     target = PoissonSurface(vertices, triangles, resolution=256)
     spacing = float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
-    assert carve_sightlines(target, points, estimate_normals(points), spacing, 96) is target
+    assert carve_sightlines(target, points, estimate_normals(points), spacing, 96) == (target, "")
 
 
 def test_the_carved_target_is_the_base_less_the_carved_nodes():
@@ -106,3 +106,14 @@ def test_a_carve_that_parts_the_solid_says_so():
     assert not _parted(base, np.zeros_like(z, bool), points)
     labels, supported = supported_regions(np.abs(z) > 2.0, points)  # no solid: nothing supported
     assert not supported.any() and labels.max() == 0
+
+
+def test_a_carve_left_out_is_reported(cup_scan, monkeypatch, capsys):
+    import voro3d.pointcloud.sightlines as sightlines
+
+    # The cup's carve, as if it parted the solid: the target stays Poisson, uncarved, and says so.
+    monkeypatch.setattr(sightlines, "_parted", lambda target, carved, points: True)
+    _, target, info = reconstruct_points(cup_scan, grid=48, steps=5, progress=True)
+    line = next(line for line in capsys.readouterr().err.splitlines() if line.startswith("voro3d target"))
+    assert info.plan.target == "poisson" and "not carved where it hid points, as that would part it" in line
+    assert line.count("carved where it hid points") == 1  # no carve made beside the note

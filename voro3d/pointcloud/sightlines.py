@@ -86,7 +86,9 @@ def sight_directions(count: int, half_angle: float) -> np.ndarray:
 
 
 def carve_sightlines(target, points, normals, spacing: float, resolution: int):
-    """``target``, or a :class:`CarvedSurface` of it where it hides points it should not.
+    """``(surface, why)``: ``target``, or a :class:`CarvedSurface` of it where it hides points it
+    should not; ``why`` says, for the plan's report, where a carve was left out because it would
+    part the solid (empty otherwise).
 
     Parameters
     ----------
@@ -112,24 +114,26 @@ def carve_sightlines(target, points, normals, spacing: float, resolution: int):
     blocked[probe] = _meets(scene, origins[probe], directions[probe])
     candidate = np.repeat(blocked.reshape(len(tested), SIGHT_LINES).all(axis=1), SIGHT_LINES)
     if np.count_nonzero(candidate) < MIN_REVEALING * len(origins):
-        return target
+        return target, ""
     tree = cKDTree(points)
     origins, directions = origins[candidate], directions[candidate]
     blocked, possible, length = _crossings(scene, origins, directions, tree, SIGHT_GAP * spacing)
     hidden = blocked.reshape(-1, SIGHT_LINES).all(axis=1)
     revealing = possible & np.repeat(hidden, SIGHT_LINES)
     if np.count_nonzero(revealing.reshape(-1, SIGHT_LINES).any(axis=1)) < MIN_REVEALING * len(tested):
-        return target
+        return target, ""
     carved = _carve_grid(target, origins[revealing], directions[revealing], length[revealing], points, normals, tree,
                          SIGHT_GAP * spacing, resolution)
+    if not carved.any():
+        return target, ""
     # Of the 13 carves over range scans of the 38 dev meshes from 1 / 3 / 6 views and with a third
     # missing (grid 64, no normals, 2026-12-06), two would part the solid, both of thingi32_53159
     # (mushrooms); left uncarved, from 3 views CD 52.5 -> 49.1, NC 0.840 -> 0.905, F1 0.520 -> 0.585,
     # two pieces -> one; a third missing 234 -> 145, 0.862 -> 0.884, 0.531 -> 0.677, one piece either
     # way (the IMLS target instead: 12.7 and 366, two pieces). Scenes, thin walls, real scans: no carve.
-    if not carved.any() or _parted(target, carved, points):
-        return target
-    return CarvedSurface(target, *carved_mesh(target.inside, target.vertices, target.triangles, carved), carved)
+    if _parted(target, carved, points):
+        return target, "not carved where it hid points, as that would part it"
+    return CarvedSurface(target, *carved_mesh(target.inside, target.vertices, target.triangles, carved), carved), ""
 
 
 def _parted(target, carved, points) -> bool:

@@ -56,7 +56,8 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         Of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point of ``given`` to the
         target, where the rule measured it.
     why : str
-        Why a closed cloud's target is not Poisson, for the plan's report; empty otherwise.
+        For the plan's report: why a closed cloud's target is not Poisson, or why its Poisson
+        target was not carved; empty otherwise.
     """
     if choice == "sheet":
         return "sheet", sheet_target(given, stats.median_spacing, resolution), None, ""
@@ -76,7 +77,7 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
             # spare the 15.2 s of the 6 refused solves, and refused one kept (homer from 3 views).)
             target, why = None, f"Poisson refused: its surface ran {escape:.0%} of the diagonal out of the points' box"
         else:
-            target = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
+            target, why = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
     kind = "poisson" if target is not None else "imls"
     if target is None:
         # Behind an open scan the solid is held within each point's shell depth (a shell under the
