@@ -93,7 +93,7 @@ def test_the_carved_target_is_the_base_less_the_carved_nodes():
 
 def test_a_carve_that_parts_the_solid_says_so():
     from voro3d.pointcloud.fields import supported_regions
-    from voro3d.pointcloud.sightlines import _parted
+    from voro3d.pointcloud.sightlines import _parted, _solid
 
     # A capsule along z with points on both round ends: carved through its middle it is two
     # supported pieces, an end carved off leaves one.
@@ -101,9 +101,10 @@ def test_a_carve_that_parts_the_solid_says_so():
     base = PoissonSurface(np.asarray(capsule.vertices), np.asarray(capsule.faces), resolution=128)
     points = base.vertices[np.abs(base.vertices[:, 2]) > 0.7]
     z = np.linspace(-1.0, 1.0, 49)[None, None, :] + np.zeros((49, 49, 1))
-    assert _parted(base, np.abs(z) < 0.1, points)
-    assert not _parted(base, z > 0.8, points)
-    assert not _parted(base, np.zeros_like(z, bool), points)
+    solid = _solid(base, 49)
+    assert _parted(solid, np.abs(z) < 0.1, points)
+    assert not _parted(solid, z > 0.8, points)
+    assert not _parted(solid, np.zeros_like(z, bool), points)
     labels, supported = supported_regions(np.abs(z) > 2.0, points)  # no solid: nothing supported
     assert not supported.any() and labels.max() == 0
 

@@ -122,8 +122,10 @@ def carve_sightlines(target, points, normals, spacing: float, resolution: int):
     revealing = possible & np.repeat(hidden, SIGHT_LINES)
     if np.count_nonzero(revealing.reshape(-1, SIGHT_LINES).any(axis=1)) < MIN_REVEALING * len(tested):
         return target, ""
-    carved = _carve_grid(target, origins[revealing], directions[revealing], length[revealing], points, normals, tree,
-                         SIGHT_GAP * spacing, resolution)
+    # The target's inside at the carve grid's nodes, read once for the carve, the parting test and the mesh.
+    solid = _solid(target, resolution)
+    carved = _carve_grid(target, solid, origins[revealing], directions[revealing], length[revealing], points, normals,
+                         tree, SIGHT_GAP * spacing, resolution)
     if not carved.any():
         return target, ""
     # Of the 13 carves over range scans of the 38 dev meshes from 1 / 3 / 6 views and with a third
@@ -131,22 +133,30 @@ def carve_sightlines(target, points, normals, spacing: float, resolution: int):
     # (mushrooms); left uncarved, from 3 views CD 52.5 -> 49.1, NC 0.840 -> 0.905, F1 0.520 -> 0.585,
     # two pieces -> one; a third missing 234 -> 145, 0.862 -> 0.884, 0.531 -> 0.677, one piece either
     # way (the IMLS target instead: 12.7 and 366, two pieces). Scenes, thin walls, real scans: no carve.
-    if _parted(target, carved, points):
+    if _parted(solid, carved, points):
         return target, "not carved where it hid points, as that would part it"
-    return CarvedSurface(target, *carved_mesh(target.inside, target.vertices, target.triangles, carved), carved), ""
+    # carved_mesh reads the inside at nodes of the same grid.
+    surface = CarvedSurface(target, *carved_mesh(lambda queries: _at(solid, queries), target.vertices, target.triangles,
+                                                 carved), carved)
+    return surface, ""
 
 
-def _parted(target, carved, points) -> bool:
-    """Whether taking the ``carved`` nodes out of the target's solid (at the nodes of their grid)
-    leaves it in more pieces that the points support (:func:`~voro3d.pointcloud.fields.supported_regions`)."""
+def _solid(target, resolution: int) -> np.ndarray:
+    """(r, r, r) bool: ``target.inside`` at the nodes of a grid over ``[-1, 1]^3``; outside its box: outside."""
     from ..sampling import grid_nodes
+
+    nodes = grid_nodes(resolution)
+    box = np.all((nodes >= target.vertices.min(axis=0)) & (nodes <= target.vertices.max(axis=0)), axis=1)
+    solid = np.zeros(len(nodes), bool)
+    solid[box] = target.inside(nodes[box])
+    return solid.reshape((resolution,) * 3)
+
+
+def _parted(solid, carved, points) -> bool:
+    """Whether taking the ``carved`` nodes out of a ``solid`` on the same grid leaves it in more
+    pieces that the points support (:func:`~voro3d.pointcloud.fields.supported_regions`)."""
     from .fields import supported_regions
 
-    nodes = grid_nodes(carved.shape[0])
-    box = np.all((nodes >= target.vertices.min(axis=0)) & (nodes <= target.vertices.max(axis=0)), axis=1)
-    solid = np.zeros(carved.size, bool)
-    solid[box] = target.inside(nodes[box])
-    solid = solid.reshape(carved.shape)
     return bool(supported_regions(solid & ~carved, points)[1].sum() > supported_regions(solid, points)[1].sum())
 
 
@@ -200,11 +210,11 @@ def _crossings(scene, origins, directions, tree, gap: float):
     return blocked, possible & blocked, length
 
 
-def _carve_grid(target, origins, directions, length, points, normals, tree, radius: float, resolution: int):
-    """(r, r, r) bool: the target's solid that a ball of ``radius`` reaches from outside without
-    touching a point (as an alpha wrap carves), in the pieces the lines pass through to their last
-    crossing; less the nodes behind a point (against its normal) within two nodes of it, the wall
-    under the points."""
+def _carve_grid(target, solid, origins, directions, length, points, normals, tree, radius: float, resolution: int):
+    """(r, r, r) bool: the target's ``solid`` (:func:`_solid`) that a ball of ``radius`` reaches from
+    outside without touching a point (as an alpha wrap carves), in the pieces the lines pass through
+    to their last crossing; less the nodes behind a point (against its normal) within two nodes of
+    it, the wall under the points."""
     from scipy import ndimage
 
     from ..sampling import grid_nodes
@@ -225,8 +235,7 @@ def _carve_grid(target, origins, directions, length, points, normals, tree, radi
     reach = ndimage.distance_transform_edt(~outside) * node <= radius
     low, high = target.vertices.min(axis=0), target.vertices.max(axis=0)
     reach &= np.all((nodes >= low) & (nodes <= high), axis=1).reshape(reach.shape)  # outside its box: outside
-    solid = np.zeros_like(reach)
-    solid[reach] = target.inside(nodes[reach.ravel()])
+    solid = solid & reach
     piece, _ = ndimage.label(solid | (seen & reach))
     carved = _among(piece, np.unique(piece[seen])) & solid
     where = np.argwhere(carved)
