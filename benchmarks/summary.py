@@ -269,7 +269,8 @@ met by the depth limit in a rounded crease (the shell's back without terraces): 
 0.820 / 0.904, F1 0.334 / 0.464; and with the band's edge smoothed past rims (no crust): CD 134.7 /
 84.6, NC 0.826 / 0.912, F1 0.333 / 0.473; and with the shell depths spread in space (the plate's rim
 no longer hangs in drips, `surface._spread_depths`): CD 122.7 / 74.0, NC 0.829 / 0.914, F1 0.339 /
-0.481. VoroMesh has the lower CD from
+0.481; rerun with the far distances read per quarter-node cell (`nodes.FAR_CELL_NODES`): CD
+122.7 / 74.1, NC 0.829 / 0.915, F1 0.339 / 0.481. VoroMesh has the lower CD from
 both, Poisson the higher F1 (one sheet at the plate's top, whose unseen underside our shell guesses
 about 3x too deep) and NC from one view.""",
     "pointcloud_islands": """\
