@@ -63,6 +63,8 @@ def _variants(info) -> dict:
 
 
 def _run(points, source, grid, plan=None) -> tuple[dict, object]:
+    from bench_pointcloud import _pieces
+
     from voro3d.metrics import evaluate
     from voro3d.pointcloud import cloud_mesh, reconstruct_points
     from voro3d.reconstruction import _check_fit
@@ -74,9 +76,10 @@ def _run(points, source, grid, plan=None) -> tuple[dict, object]:
         _check_fit(mesh, points, info.voxel, info.offset)
     except (ValueError, RuntimeError) as error:
         return dict(error=f"{type(error).__name__}: {error}", seconds=time.perf_counter() - start), None
+    seconds = time.perf_counter() - start
     scores = evaluate(mesh, source)
-    return dict(cd=scores["chamfer_x1e5"], nc=scores["nc"], f1=scores["f1"], seconds=time.perf_counter() - start,
-                plan=str(info.plan)), info
+    return dict(cd=scores["chamfer_x1e5"], nc=scores["nc"], f1=scores["f1"], seconds=seconds, plan=str(info.plan),
+                level=info.level, pieces=_pieces(mesh)), info
 
 
 def run_cloud(name: str, condition: str, grid, rules=RULES) -> dict:
