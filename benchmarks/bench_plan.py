@@ -57,8 +57,9 @@ def _variants(info) -> dict:
     if info.plan.target == "sheet":
         variants["shell"] = {"target": "poisson" if closed else "imls"}
     else:
-        variants["hull"] = {"hull": "on"}
-        variants["views"] = {"target": "imls", "hull": "on"}
+        variants["hull"] = {"hull": "off" if info.plan.hull == "on" else "on"}
+        if (info.plan.target, info.plan.hull) != ("imls", "on"):
+            variants["views"] = {"target": "imls", "hull": "on"}
     return variants
 
 

@@ -12,12 +12,13 @@ the plate are never seen, and the object stands on a surface seen from one side 
 CD x1e5, NC and F1 at 0.003 against the scene (object and plate, NDC frame), VoroMesh checked
 closed with no crossing triangles, pieces counted. ``--shell-depth uniform`` holds every open
 cloud's solid within ``SHELL_DEPTH`` of its points (the rule before ``surface.shell_depths``):
-the ablation beside ``SHELL_DEPTH``.
+the ablation beside ``SHELL_DEPTH``. ``--hull on|off`` sets the plan's cut to the points' hull (default
+``auto``, the plan's rule): the ablation beside ``HULL_MARGIN_NODES``.
 
 Writes ``benchmarks/results/scenes.{md,json,png}`` (``--out``; the picture: each method on two
 scenes, three views).
 
-    python benchmarks/bench_scenes.py [--shapes ...] [--views 1 3] [--no-poisson] [--shell-depth uniform]
+    python benchmarks/bench_scenes.py [--shapes ...] [--views 1 3] [--no-poisson] [--shell-depth uniform] [--hull on]
 """
 from __future__ import annotations
 
@@ -56,7 +57,7 @@ def table_scene(vertices, triangles):
             np.vstack([triangles, np.asarray(plate.triangles) + len(vertices)]))
 
 
-def run(name, views, grid, *, with_poisson, picture_dir):
+def run(name, views, grid, *, with_poisson, picture_dir, hull="auto"):
     from voro3d.io import load_mesh, mesh_arrays, save_mesh
     from voro3d.metrics import evaluate
     from voro3d.pointcloud import cloud_mesh, reconstruct_points
@@ -68,13 +69,13 @@ def run(name, views, grid, *, with_poisson, picture_dir):
     row = dict(shape=name, views=views, points=len(points))
     start = time.perf_counter()
     try:
-        shape, target, info = reconstruct_points(points, grid=grid)
+        shape, target, info = reconstruct_points(points, grid=grid, plan={"hull": hull})
         mesh = cloud_mesh(shape, target)
         _check_fit(mesh, points, info.voxel, info.offset)
         seconds = time.perf_counter() - start
         report = check_watertight(mesh)
         row["voromesh"] = dict(evaluate(mesh, scene), seconds=seconds, target=info.target, level=info.level,
-                               closed=bool(report.watertight and report.self_intersecting_pairs == 0),
+                               plan=str(info.plan), closed=bool(report.watertight and report.self_intersecting_pairs == 0),
                                pieces=_pieces(mesh))
         meshes = {"voromesh": mesh}
     except (ValueError, RuntimeError) as error:
@@ -97,7 +98,7 @@ def write(out: Path, meta, rows):
              f"{meta['load_before']} before, {meta['load_after']} after)", "",
              f"Each of {len(meta['shapes'])} dev meshes on a plate {PLATE_SPAN}x its footprint, range-scanned "
              f"({POINTS:,} points) from 1 or 3 viewpoints 30 degrees above it; no normals, grid {meta['grid']}, shell "
-             f"depth {meta['shell_depth']}. CD x1e5, NC, F1 at 0.003 against the scene (object and plate). "
+             f"depth {meta['shell_depth']}, hull {meta.get('hull', 'auto')}. CD x1e5, NC, F1 at 0.003 against the scene (object and plate). "
              "Rerun: `python benchmarks/bench_scenes.py`.", "",
              "| views | clouds | " + " | ".join(f"{m} CD / NC / F1" for m in methods) + " | VoroMesh closed % | "
              "VoroMesh one piece % | " + " | ".join(f"{m} s" for m in methods) + " |",
@@ -158,6 +159,7 @@ def main():
     parser.add_argument("--grid", type=int, default=64)
     parser.add_argument("--no-poisson", action="store_true")
     parser.add_argument("--shell-depth", choices=("local", "uniform"), default="local")
+    parser.add_argument("--hull", choices=("auto", "on", "off"), default="auto")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
     import multiprocessing
@@ -172,11 +174,13 @@ def main():
     args.out.parent.mkdir(parents=True, exist_ok=True)
     load = lambda: " ".join(Path("/proc/loadavg").read_text().split()[:3])  # noqa: E731
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=f"x86_64, {multiprocessing.cpu_count()} cores",
-                load_before=load(), grid=args.grid, shell_depth=args.shell_depth, shapes=shapes, views=args.views)
+                load_before=load(), grid=args.grid, shell_depth=args.shell_depth, hull=args.hull, shapes=shapes,
+                views=args.views)
     rows = []
     for views in args.views:
         for name in shapes:
-            rows.append(run(name, views, args.grid, with_poisson=not args.no_poisson, picture_dir=picture_dir))
+            rows.append(run(name, views, args.grid, with_poisson=not args.no_poisson, picture_dir=picture_dir,
+                            hull=args.hull))
             print(json.dumps(rows[-1]), flush=True)
     meta["load_after"] = load()
     write(args.out, meta, rows)

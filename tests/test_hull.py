@@ -52,10 +52,34 @@ def test_a_target_within_the_hull_is_returned_as_it_is():
     assert clip_to_hull(ball, ball.vertices * 1.001, 64) is ball
 
 
+def _plate(n: int = 20_000, half: float = 0.6, wall: float = 0.03):
+    """A plate seen from above: points on its top (z = 0) and on its sides down to z = -``wall``."""
+    rng = np.random.default_rng(0)
+    top = np.c_[rng.uniform(-half, half, (n, 2)), np.zeros(n)]
+    along, depth, side = rng.uniform(-half, half, n // 8), rng.uniform(-wall, 0.0, n // 8), rng.integers(0, 4, n // 8)
+    edge = np.where(side % 2 == 0, half, -half)
+    sides = np.where((side < 2)[:, None], np.c_[along, edge, depth], np.c_[edge, along, depth])
+    return np.vstack([top, sides])
+
+
+@pytest.mark.parametrize("hull", ["auto", "off"])
+def test_an_open_cloud_s_solid_ends_at_the_points_hull_unless_the_plan_says_off(hull):
+    # One-sided: its solid behind the top is a guess, a shell's depth (SHELL_DEPTH) deep, three times the
+    # seen sides; auto cuts it back to the hull, which the sides' lower edge bounds.
+    points = _plate()
+    shape, target, info = reconstruct_points(points, grid=48, steps=40, plan={"hull": hull})
+    mesh = cloud_mesh(shape, target)
+    check_watertight(mesh)
+    assert info.level < 0.25 and info.plan.hull == ("on" if hull == "auto" else "off")
+    below = (np.asarray(mesh.vertices)[:, 2].min() - points[:, 2].min()) / info.voxel
+    assert below > -2.0 if hull == "auto" else below < -2.5
+
+
 @pytest.mark.parametrize("hull", ["on", "auto"])
 def test_with_the_plan_s_hull_a_closure_does_not_swell_past_the_points(hull):
     # A sphere seen down to z = -0.3 of its radius 0.6: Poisson's closure of the missing cap bulges
-    # below the cut, past everything the points bound, unless the plan cuts it (auto: it does not).
+    # below the cut, past everything the points bound, unless the plan cuts it (auto, for a closed
+    # cloud: it does not).
     points = _cap(-0.3, 12_000)
     shape, target, info = reconstruct_points(points, grid=32, steps=60, plan={"target": "poisson", "hull": hull})
     mesh = cloud_mesh(shape, target)

@@ -312,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "around the points (thin walls) (default: from the cloud; the plan chosen is printed)")
     rebuild.add_argument("--hull", choices=PLAN_FIELDS["hull"], default="auto",
                          help="point clouds: cut the target back to the points' convex hull, for range scans from a "
-                              "few viewpoints (default: off)")
+                              "few viewpoints (default: on for one-sided scans, off for clouds that enclose a volume)")
     _allow_open_option(rebuild)
     rebuild.add_argument("--engine", choices=("local", "ray"), default="local",
                          help="where a large cloud's tiles are fitted (over 2 million points): a local process pool "

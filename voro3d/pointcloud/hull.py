@@ -6,9 +6,10 @@ convex hull, yet such guesses swell past it: a hand whose fingers were seen from
 back as a ball around them, the underside of a lid scanned from above as a slab below its rim.
 Where a plan's ``hull`` is ``"on"`` the solid is cut back to the hull, a margin of
 ``HULL_MARGIN_NODES`` nodes of the target's grid out (a VoroMesh voxel), so that a scan the hull
-leaves flat keeps a solid the grid resolves. The guess can be right, though: a cloud with a part cut
-away loses the closure's continuation past the cut, so ``"auto"`` leaves it off. The measurement:
-beside ``HULL_MARGIN_NODES`` in :mod:`voro3d.pointcloud.tuning`.
+leaves flat keeps a solid the grid resolves. ``"auto"`` cuts an open cloud's (a one-sided scan's
+solid is a guess behind what was seen) and leaves a closed cloud's: there the guess can be right, a
+cloud with a part cut away losing the closure's continuation past the cut. The measurement: beside
+``HULL_MARGIN_NODES`` in :mod:`voro3d.pointcloud.tuning`.
 """
 from __future__ import annotations
 

@@ -54,7 +54,9 @@ class CloudPlan:
         Cut the target's solid back to the points' convex hull, a voxel out
         (:mod:`~voro3d.pointcloud.hull`; Poisson and IMLS targets): for range scans from a few
         viewpoints, whose closure otherwise swells past everything the points bound. ``"auto"``:
-        off, for on clouds with a part cut away it takes the closure's continuation off with the
+        on for a cloud that does not enclose a volume (its solid behind the seen side is a guess:
+        a table seen from above comes back as thin as its seen edges, not a shell's depth), off for
+        one that does: with a part cut away it would take the closure's continuation off with the
         swelling, and no measure of the cloud yet tells the two apart (beside ``HULL_MARGIN_NODES``).
     """
 
@@ -114,9 +116,11 @@ def settle_filter(plan: CloudPlan, *, smoothed: bool, noisy: bool, noise: float,
     return "on" if smoothed and noisy and noise > HEAVY_NOISE * 2.0 / 2**depth else "off"
 
 
-def settle_hull(plan: CloudPlan, kind: str) -> str:
-    """The cut to the hull: only where asked for, of a Poisson or IMLS target (a shell hugs the points)."""
-    return "on" if plan.hull == "on" and kind != "sheet" else "off"
+def settle_hull(plan: CloudPlan, *, closed: bool, kind: str = "imls") -> str:
+    """The cut to the hull of a Poisson or IMLS target (a shell hugs the points): where asked for and,
+    ``"auto"``, for an open cloud (not ``closed``), whose solid behind the seen side is a guess."""
+    wanted = plan.hull == "on" or (plan.hull == "auto" and not closed)
+    return "on" if wanted and kind != "sheet" else "off"
 
 
 def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance=None):

@@ -387,14 +387,15 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     kind, target, distance, why = build_target(plan.target, framed, given, normals, widths, stats, level=level,
                                                closed=closed, depth=depth, resolution=resolution,
                                                filtered=filtered == "on", dense=dense and denoise == "off",
-                                               hull=plan.hull == "on", helper=helper)
+                                               hull=settle_hull(plan, closed=closed) == "on", helper=helper)
     if kind == "sheet":
         framed = given
     if kind != "poisson":
         filtered = "off"
     check_coverage(target, framed, widths, distance=distance if framed is given else None)
     surface_vertices = target.project(target.vertices)
-    plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind, hull=settle_hull(plan, kind))
+    plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind,
+                     hull=settle_hull(plan, closed=closed, kind=kind))
     seconds["surface"] = time.perf_counter() - start
     # What the plan's hull would cut, read for the report only.
     past = reach_past_hull(target, framed, resolution) if progress and plan.hull == "off" and kind != "sheet" else 0.0
