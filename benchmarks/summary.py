@@ -143,9 +143,19 @@ convex hull, `voro3d/pointcloud/hull.py`) on against `auto` (off), 28 dev meshes
 conditions, no normals. On 3-view range scans it pays on 25 of 28 (CD 49.9 against 30.0: Poisson's
 and IMLS's closures swell past the hull); 6-view scans are never cut; 1-view scans trade CD (334
 against 352) for NC and F1; a third missing loses the closure's continuation past the cut (CD 325
-against 451). No measure of the cloud told the last apart from 3-view scans, so `auto` leaves it off.
+against 451). No measure of the cloud told the last apart from 3-view scans, so `auto` leaves it off for clouds that
+enclose a volume (for open ones it is on since `plan_hull_open`).
 The picture (`--pictures-only --pictures SHAPE:CONDITION ...`): the arm's hand, a ball without the
 cut, a block with it; the lid's underside; the cut-off back of a third-missing cow flattened.""",
+    "plan_hull_open": """\
+`benchmarks/bench_plan.py --rules hull` on all 38 dev meshes from 1 and 3 views (2026-12-06), run before
+`auto` cut open clouds back to the hull: `auto` here is off, `turned` on. Every 1-view scan reads open (its
+winding level under `CLOSED_LEVEL`): the cut trades CD (368.8 -> 391.5, lower on 9 of 38: the shell's
+lobes behind round parts) for NC (0.758 -> 0.775) and F1 (0.381 -> 0.403); the 3 of the 3-view scans that
+read open gain (65.8 -> 34.7), as do objects on a table (`scenes`: CD 122.7 / 74.1 -> 37.3 / 22.8 from 1 /
+3 views, `bench_scenes.py --hull on` against the run before), whose table comes back as thin as its seen
+edges. Every output closed and in one piece. So `auto` now cuts open clouds; closed ones stay uncut
+(`plan_hull`).""",
     "plan_views": """\
 `benchmarks/bench_plan.py --rules views`: the plan the README gives for scans from a few viewpoints,
 the IMLS target cut back to the hull (`target imls, hull on`), against `auto` on all 38 dev meshes x
@@ -203,7 +213,10 @@ spread in space (`surface._spread_depths`: 1 view CD 211.5 -> 210.7, F1 0.384 ->
 read closed and are unchanged) and the IMLS target's grid queries cut (the same surfaces). Every row
 rerun after that, both methods and alpha wrap in one run: VoroMesh takes 2.11x Open3D's pipeline
 summed (122 s against 58 s; the run before 156 s against 74 s, the same ratio on a faster machine),
-61% of it the target surface.""",
+61% of it the target surface. Then `hull auto` cut open clouds back to the points' hull
+(`plan_hull_open`; 1- and 3-view rows rerun with all three methods, 2026-12-06): 1 view CD 210.7 ->
+225.3, NC 0.747 -> 0.765, F1 0.386 -> 0.410; 3 views 45.2 -> 42.8 (abc_00000005, open, 93 -> 64); 2.20x
+(the cut 0.3-0.5 s a cloud).""",
     "pointcloud_dense_range": """\
 `bench_pointcloud.py --conditions "dense range scan 1 view"`: one view of a depth camera's frame
 (1600x1200 pixels, ~300k points, depth noise a quarter of the spacing) on the 12 meshes of
@@ -239,7 +252,9 @@ a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one vie
 6.1x as far from it as from the IMLS target, which it now keeps (817, NC 0.811, F1 0.464 against the
 shell's 0.036; alpha wrap 1027). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
-against 71-74).""",
+against 71-74). With `hull auto` cutting open clouds (1- and 3-view rows rerun, all three methods):
+1 view CD 413 -> 437, NC 0.780 -> 0.789, F1 0.388 -> 0.410; 3 views 66.8 -> 64.2 (abc_00000001 70 ->
+28); 2.05x.""",
     "pointcloud_range_rest": """\
 The range conditions on the other 10 dev meshes (with `pointcloud_range` and `pointcloud_range_more`,
 all 38), all three methods in one run (2026-12-06; the mushrooms' rows rerun for the picture, with
@@ -253,7 +268,9 @@ scans Poisson's closure swells under what no view saw: of the 38 meshes' 3-view 
 has the lower CD on all 18 that keep Poisson (homer 105 -> 11, screwdriver 38 -> 2.5, the mushrooms
 49 -> 12.7), where with a third missing Poisson has it on 22 of the 26 measured; neither the escape
 (0.028-0.079 against 0.0005-0.062) nor the winding level (0.32-0.46 against 0.34-0.48) tells the two
-apart.""",
+apart. With `hull auto` cutting open clouds (1- and 3-view rows rerun, all three methods): 1 view CD
+487 -> 518, NC 0.737 -> 0.765, F1 0.364 -> 0.384; 3 views 47.6 -> 45.5 (thingi32_76277 33 -> 12);
+2.09x.""",
     "scenes": """\
 `benchmarks/bench_scenes.py`: each of the 12 meshes of `pointcloud_range` on a plate (1.6x its footprint),
 scanned from 1 or 3 viewpoints 30 degrees above it, as a turntable or a handheld scanner sees an object
@@ -270,9 +287,11 @@ met by the depth limit in a rounded crease (the shell's back without terraces): 
 84.6, NC 0.826 / 0.912, F1 0.333 / 0.473; and with the shell depths spread in space (the plate's rim
 no longer hangs in drips, `surface._spread_depths`): CD 122.7 / 74.0, NC 0.829 / 0.914, F1 0.339 /
 0.481; rerun with the far distances read per quarter-node cell (`nodes.FAR_CELL_NODES`): CD
-122.7 / 74.1, NC 0.829 / 0.915, F1 0.339 / 0.481. VoroMesh has the lower CD from
-both, Poisson the higher F1 (one sheet at the plate's top, whose unseen underside our shell guesses
-about 3x too deep) and NC from one view.""",
+122.7 / 74.1, NC 0.829 / 0.915, F1 0.339 / 0.481, Poisson the higher F1 (one sheet at the plate's
+top, whose unseen underside our shell guessed about 3x too deep) and NC from one view. Since `hull auto`
+cuts open clouds back to the points' hull (`plan_hull_open`), the table is as thin as its seen edges:
+CD 37.3 / 22.8, NC 0.858 / 0.931, F1 0.449 / 0.503 against Poisson's 328 / 140, 0.832 / 0.884, 0.412 /
+0.547, every output closed and in one piece.""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside

@@ -256,16 +256,16 @@ MAX_BRIDGE_GAP = 0.25
 # bench_pointcloud.py --no-poisson --poisson-escape none --conditions "range scan 3 views" ...
 MAX_POISSON_ESCAPE = 0.08
 # With plan hull "on", a target's solid more than this many nodes of its grid (a VoroMesh voxel at
-# FIELD_REFINEMENT 2) outside the points' convex hull is cut away (voro3d.pointcloud.hull). On and off,
-# 28 dev meshes, no normals, grid 64 (bench_plan.py --rules hull, plan_hull.md), mean CD / NC / F1:
-# 3-view range scans 49.9 / 0.894 / 0.648 -> 30.0 / 0.910 / 0.667 (lower CD on 25 of 28; homer 105 ->
-# 29, spot 36 -> 7.9: Poisson's swollen closure), 1 view 334 -> 352, NC +0.017, F1 +0.028 (lower CD on
-# 8 of 27: a thinner plate behind the seen side; 2 clouds in 2 pieces), 6 views never cut, a third
-# missing 325 -> 451, NC -0.019 (lower CD on 1 of 28: the closure's continuation past the cut plane goes).
-# So "auto" leaves it off: neither the winding level (third missing 0.31-0.48, 3 views 0.14-0.46), nor
-# the share of the solid the cut takes (0-0.27 both), nor this margin tells the two apart: 4 / 8 / 16
-# nodes give homer's 3-view scan 53 / 96 / 106 and spot's 9.2 / 23 / 36 back as they give the third
-# missing's continuation (spot 180 / 107 / 71 against 236 at 2 and 78 off).
+# FIELD_REFINEMENT 2) outside the points' convex hull is cut away (voro3d.pointcloud.hull); "auto" cuts an
+# open cloud's (level under CLOSED_LEVEL). Off -> on, 38 dev meshes, no normals, grid 64 (plan_hull_open.md,
+# 2026-12-06): 1 view CD 368.8 -> 391.5, NC 0.758 -> 0.775, F1 0.381 -> 0.403 (lower CD on 9), 3-view scans
+# that read open (3) 65.8 -> 34.7; on a table (bench_scenes.py --hull) 1 / 3 views CD 122.7 / 74.1 -> 37.3 /
+# 22.8, F1 0.339 / 0.481 -> 0.449 / 0.503 (24 of 24: the table as thin as its seen edges); all closed, one
+# piece. Closed 3-view scans gain too (54.0 -> 32.5, 26 of 35: Poisson's swollen closure), a third missing
+# loses (28 meshes, plan_hull.md: 325 -> 451, NC -0.019, 1 of 28), and neither the level (0.14-0.46 against
+# 0.31-0.48), the share of the solid cut (0-0.27 both), the closure's mean reach past the hull (0.04-0.11
+# against 0.03-0.24) nor this margin (homer's 3-view scan 53 / 96 / 106 at 4 / 8 / 16 nodes, spot's third
+# missing 180 / 107 / 71, against 236 at 2 and 78 off) tells them apart.
 HULL_MARGIN_NODES = 2.0
 # Share of the points that must lie on the target surface (within two kernel widths).
 MIN_COVERAGE = 0.9
