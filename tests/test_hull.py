@@ -47,6 +47,19 @@ def test_the_solid_past_the_hull_is_cut_away_and_the_rest_kept():
     assert clipped.vertices[:, 2].max() == pytest.approx(ball.vertices[:, 2].max())
 
 
+def test_a_slanted_cut_is_meshed_flat_where_the_hull_s_face_lies():
+    # Marching Cubes over the carved nodes alone put a shallow cut in terraces a quarter node high.
+    ball, node = Ball(), 2.0 / 63
+    axis = np.array([1.0, 0.0, 4.0]) / np.sqrt(17.0)
+    points = _cap(-1.0)
+    points = points[points @ axis > 0.1]
+    clipped = clip_to_hull(ball, points, 64)
+    height = clipped.vertices @ axis - (0.1 - HULL_MARGIN_NODES * node)
+    across = np.linalg.norm(clipped.vertices - np.outer(clipped.vertices @ axis, axis), axis=1)
+    cut = (np.abs(height) < 2 * node) & (across < 0.4)
+    assert cut.sum() > 100 and np.abs(height[cut]).max() < 0.05 * node
+
+
 def test_a_target_within_the_hull_is_returned_as_it_is():
     ball = Ball()
     assert clip_to_hull(ball, ball.vertices * 1.001, 64) is ball

@@ -85,8 +85,9 @@ def clip_to_hull(target, points, resolution: int):
     carved[tuple(index.T)] = True
     # Triangles past the cut go too, with slivers of solid thinner than a node that no node marked.
     beyond = _beyond(vertices[target.triangles].mean(axis=1), scene, hull.equations, margin + node)
-    return ClippedSurface(target, *carved_mesh(target.inside, vertices, target.triangles[~beyond], carved), carved,
-                          scene, hull.equations, margin)
+    mesh = carved_mesh(target.inside, vertices, target.triangles[~beyond], carved,
+                       past=lambda queries: _height(queries, hull.equations) - margin)
+    return ClippedSurface(target, *mesh, carved, scene, hull.equations, margin)
 
 
 def reach_past_hull(target, points, resolution: int) -> float:

@@ -246,10 +246,14 @@ def _carve_grid(target, solid, origins, directions, length, points, normals, tre
     return carved
 
 
-def carved_mesh(inside, vertices, triangles, carved):
+def carved_mesh(inside, vertices, triangles, carved, *, past=None):
     """The triangles of a target with the ``carved`` nodes (a grid over ``[-1, 1]^3``) taken out of
     its solid: its own (``vertices``, ``triangles``) away from the carved nodes, and the Marching Cubes
-    boundary of the carved space inside its solid (the ``inside`` test), near the carve only."""
+    boundary of the carved space inside its solid (the ``inside`` test), near the carve only.
+
+    ``past``, where the carve is a smooth cut: (q, 3) fit-frame points -> (q,) signed distance past
+    it (fit frame, positive where carved), read near the carve so that the cut is meshed where it
+    lies, not as the staircase of the carved nodes."""
     from scipy import ndimage
 
     from .fields import _marching_cubes
@@ -263,8 +267,15 @@ def carved_mesh(inside, vertices, triangles, carved):
     box = tuple(slice(a, b) for a, b in zip(low, high))
     axes = [np.arange(a, b) * node - 1.0 for a, b in zip(low, high)]
     nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    solid = inside(nodes).reshape(grown[box].shape) & ~carved[box]
-    field = ndimage.gaussian_filter(np.where(solid, -1.0, 1.0), 0.7)
+    if past is None:
+        solid = inside(nodes).reshape(grown[box].shape) & ~carved[box]
+        field = ndimage.gaussian_filter(np.where(solid, -1.0, 1.0), 0.7)
+    else:
+        field = ndimage.gaussian_filter(np.where(inside(nodes).reshape(grown[box].shape), -1.0, 1.0), 0.7)
+        # Further than the grown carve the cut is at least two nodes away: its field saturates.
+        cut = np.full(field.shape, -1.0)
+        cut[grown[box]] = np.clip(past(nodes[grown[box].ravel()]) / node, -1.0, 1.0)
+        field = np.maximum(field, cut)
     field = np.pad(field, 1, constant_values=1.0)  # closed at the sub-grid's faces
     cut_vertices, cut_triangles = _marching_cubes(field)
     cut_vertices = (cut_vertices - 1.0 + low) * node - 1.0
