@@ -75,8 +75,8 @@ def run(name, views, grid, *, with_poisson, picture_dir, hull="auto"):
         seconds = time.perf_counter() - start
         report = check_watertight(mesh)
         row["voromesh"] = dict(evaluate(mesh, scene), seconds=seconds, target=info.target, level=info.level,
-                               plan=str(info.plan), closed=bool(report.watertight and report.self_intersecting_pairs == 0),
-                               pieces=_pieces(mesh))
+                               plan=str(info.plan), pieces=_pieces(mesh),
+                               closed=bool(report.watertight and report.self_intersecting_pairs == 0))
         meshes = {"voromesh": mesh}
     except (ValueError, RuntimeError) as error:
         row["voromesh"] = dict(error=f"{type(error).__name__}: {error}", seconds=time.perf_counter() - start)
@@ -98,8 +98,8 @@ def write(out: Path, meta, rows):
              f"{meta['load_before']} before, {meta['load_after']} after)", "",
              f"Each of {len(meta['shapes'])} dev meshes on a plate {PLATE_SPAN}x its footprint, range-scanned "
              f"({POINTS:,} points) from 1 or 3 viewpoints 30 degrees above it; no normals, grid {meta['grid']}, shell "
-             f"depth {meta['shell_depth']}, hull {meta.get('hull', 'auto')}. CD x1e5, NC, F1 at 0.003 against the scene (object and plate). "
-             "Rerun: `python benchmarks/bench_scenes.py`.", "",
+             f"depth {meta['shell_depth']}, hull {meta.get('hull', 'auto')}. CD x1e5, NC, F1 at 0.003 against the "
+             "scene (object and plate). Rerun: `python benchmarks/bench_scenes.py`.", "",
              "| views | clouds | " + " | ".join(f"{m} CD / NC / F1" for m in methods) + " | VoroMesh closed % | "
              "VoroMesh one piece % | " + " | ".join(f"{m} s" for m in methods) + " |",
              "|---" * (4 + 2 * len(methods)) + "|"]

@@ -214,9 +214,9 @@ read closed and are unchanged) and the IMLS target's grid queries cut (the same 
 rerun after that, both methods and alpha wrap in one run: VoroMesh takes 2.11x Open3D's pipeline
 summed (122 s against 58 s; the run before 156 s against 74 s, the same ratio on a faster machine),
 61% of it the target surface. Then `hull auto` cut open clouds back to the points' hull
-(`plan_hull_open`; 1- and 3-view rows rerun with all three methods, 2026-12-06): 1 view CD 210.7 ->
-225.3, NC 0.747 -> 0.765, F1 0.386 -> 0.410; 3 views 45.2 -> 42.8 (abc_00000005, open, 93 -> 64); 2.20x
-(the cut 0.3-0.5 s a cloud).""",
+(`plan_hull_open`; the cut meshed flat where the hull's faces lie; 1- and 3-view rows rerun with all
+three methods, 2026-12-06): 1 view CD 210.7 -> 224.3, NC 0.747 -> 0.765, F1 0.386 -> 0.409; 3 views 45.2
+-> 42.9 (abc_00000005, open, 93 -> 65); 2.09x (the cut 0.3-0.5 s a cloud).""",
     "pointcloud_dense_range": """\
 `bench_pointcloud.py --conditions "dense range scan 1 view"`: one view of a depth camera's frame
 (1600x1200 pixels, ~300k points, depth noise a quarter of the spacing) on the 12 meshes of
@@ -255,8 +255,8 @@ a thin shell is alpha wrap's guess, right for this lid). bumpy-cube from one vie
 shell's 0.036; alpha wrap 1027). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
 against 71-74). With `hull auto` cutting open clouds (1- and 3-view rows rerun, all three methods):
-1 view CD 413 -> 437, NC 0.780 -> 0.789, F1 0.388 -> 0.410; 3 views 66.8 -> 64.2 (abc_00000001 70 ->
-28); 2.05x.""",
+1 view CD 413 -> 438, NC 0.780 -> 0.791, F1 0.388 -> 0.411; 3 views 66.8 -> 64.2 (abc_00000001 70 ->
+28); 2.07x.""",
     "pointcloud_range_rest": """\
 The range conditions on the other 10 dev meshes (with `pointcloud_range` and `pointcloud_range_more`,
 all 38), all three methods in one run (2026-12-06; the mushrooms' rows rerun for the picture, with
@@ -271,8 +271,8 @@ has the lower CD on all 18 that keep Poisson (homer 105 -> 11, screwdriver 38 ->
 49 -> 12.7), where with a third missing Poisson has it on 22 of the 26 measured; neither the escape
 (0.028-0.079 against 0.0005-0.062) nor the winding level (0.32-0.46 against 0.34-0.48) tells the two
 apart. With `hull auto` cutting open clouds (1- and 3-view rows rerun, all three methods): 1 view CD
-487 -> 518, NC 0.737 -> 0.765, F1 0.364 -> 0.384; 3 views 47.6 -> 45.5 (thingi32_76277 33 -> 12);
-2.09x.""",
+487 -> 516, NC 0.737 -> 0.765, F1 0.364 -> 0.384; 3 views 47.6 -> 45.7 (thingi32_76277 33 -> 14);
+2.00x.""",
     "scenes": """\
 `benchmarks/bench_scenes.py`: each of the 12 meshes of `pointcloud_range` on a plate (1.6x its footprint),
 scanned from 1 or 3 viewpoints 30 degrees above it, as a turntable or a handheld scanner sees an object
