@@ -292,8 +292,8 @@ no longer hangs in drips, `surface._spread_depths`): CD 122.7 / 74.0, NC 0.829 /
 122.7 / 74.1, NC 0.829 / 0.915, F1 0.339 / 0.481, Poisson the higher F1 (one sheet at the plate's
 top, whose unseen underside our shell guessed about 3x too deep) and NC from one view. Since `hull auto`
 cuts open clouds back to the points' hull (`plan_hull_open`), the table is as thin as its seen edges:
-CD 37.3 / 22.8, NC 0.858 / 0.931, F1 0.449 / 0.503 against Poisson's 328 / 140, 0.832 / 0.884, 0.412 /
-0.547, every output closed and in one piece.""",
+CD 36.6 / 22.7, NC 0.864 / 0.933, F1 0.441 / 0.504 against Poisson's 328 / 141, 0.832 / 0.884, 0.413 /
+0.546 (the cut meshed flat where the hull's faces lie), every output closed and in one piece.""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside
