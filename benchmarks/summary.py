@@ -148,25 +148,28 @@ enclose a volume (for open ones it is on since `plan_hull_open`).
 The picture (`--pictures-only --pictures SHAPE:CONDITION ...`): the arm's hand, a ball without the
 cut, a block with it; the lid's underside; the cut-off back of a third-missing cow flattened.""",
     "plan_hull_open": """\
-`benchmarks/bench_plan.py --rules hull` on all 38 dev meshes from 1 and 3 views (2026-12-06), run before
-`auto` cut open clouds back to the hull: `auto` here is off, `turned` on. Every 1-view scan reads open (its
-winding level under `CLOSED_LEVEL`): the cut trades CD (368.8 -> 391.5, lower on 9 of 38: the shell's
-lobes behind round parts) for NC (0.758 -> 0.775) and F1 (0.381 -> 0.403); the 3 of the 3-view scans that
-read open gain (65.8 -> 34.7), as do objects on a table (`scenes`: CD 122.7 / 74.1 -> 37.3 / 22.8 from 1 /
-3 views, `bench_scenes.py --hull on` against the run before), whose table comes back as thin as its seen
-edges. Every output closed and in one piece. So `auto` now cuts open clouds; closed ones stay uncut
-(`plan_hull`).""",
+`benchmarks/bench_plan.py --rules hull views` on all 38 dev meshes from 1 and 3 views (2026-12-06, one
+run, the cut meshed flat), `auto` cutting open clouds back to the hull. Every 1-view scan reads open
+(its winding level under `CLOSED_LEVEL`): the cut trades CD (368.8 uncut -> 390.8, lower on 9 of 38:
+the lobes behind round parts) for NC (0.758 -> 0.776) and F1 (0.381 -> 0.403). From 3 views the 3
+clouds that read open gain (65.8 -> 35.7, NC 0.844 -> 0.896), as do objects on a table (`scenes`: CD
+122.7 / 74.1 -> 36.6 / 22.7 from 1 / 3 views), whose table comes back as thin as its seen edges; the
+35 that read closed stay uncut by `auto` (turned on: 54.0 -> 32.3, better on 27, but a third missing
+loses its continuation past the cut: `plan_hull`). Its cost: the 2 of 38 third-missing clouds that
+read open (thingi32_75656 388.5 -> 508.6, thingi32_75662 381.9 -> 446.5). Every output closed and in
+one piece.""",
     "plan_views": """\
 `benchmarks/bench_plan.py --rules views`: the plan the README gives for scans from a few viewpoints,
 the IMLS target cut back to the hull (`target imls, hull on`), against `auto` on all 38 dev meshes x
-the range conditions and a third missing (2026-12-06, one run). From 3 views it pays on 32 of 38
-(CD 55.0 -> 23.9, NC 0.915 -> 0.934, F1 0.669 -> 0.710, 0.66x the time: no Poisson solve): `auto`'s
-Poisson swells under the undersides no view saw (the statue thingi32_78671's base: 59.8 -> 3.6; homer
-105 -> 11). Where the views cover the object (6 views: 2.58 -> 7.52, NC -0.013) or a part was cut away
-(342 -> 436, NC -0.029; the elephant's head flattened) Poisson's closure wins, and the points do not say
-which they are (the winding level, Poisson's escape out of the box, depth noise: `pointcloud_range_rest`),
-so `auto` keeps Poisson for clouds that enclose a volume; from 1 view (IMLS either way) the hull trades
-CD (369 -> 392) for NC and F1 (0.758 -> 0.775, 0.381 -> 0.403).""",
+the range conditions and a third missing (1 / 3 views rerun 2026-12-06 with open clouds cut by
+`auto`, which is then this plan; 6 views and a third missing from the run before, the 4 third-missing
+clouds with an IMLS target rerun). From 3 views it pays on 30 of the 35 that read closed (CD 54.0 ->
+22.6, NC 0.921 -> 0.937, F1 0.682 -> 0.723, 0.65x the time: no Poisson solve): `auto`'s Poisson
+swells under the undersides no view saw (the statue thingi32_78671's base: 59.8 -> 4.5; homer 105 ->
+11). Where the views cover the object (6 views: 2.58 -> 7.52, NC -0.013) or a part was cut away (339 ->
+433, NC -0.029; the elephant's head flattened) Poisson's closure wins, and the points do not say which
+they are (the winding level, Poisson's escape out of the box, depth noise: `pointcloud_range_rest`),
+so `auto` keeps Poisson for clouds that enclose a volume.""",
     "colours": """\
 `benchmarks/bench_colours.py`: a cloud's colours on its mesh, by position (smooth) and by |normal|
 (fast), voro3d with its mesh split flat to about one vertex per point, without the split, and
