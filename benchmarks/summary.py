@@ -130,13 +130,17 @@ against Open3D's Poisson at depths 9 and 10 on the same points; peak memory of t
 tree. Both engines give the same mesh, closed, one piece, no crossing triangles (exact check), in
 under a minute and about 2-2.7 GB; Poisson depth 9's CD is 0.2% lower with 48x the faces.""",
     "plan": """\
-`benchmarks/bench_plan.py`: each rule of a cloud's plan (`voro3d/pointcloud/plan.py`) turned the other
-way on the clouds where it applies, 8 dev meshes x 5 conditions, no normals. The smoothing pass pays
-on noisy clouds (CD 5.9 against 19.3) and is a wash elsewhere; refusing a Poisson surface that flaps
-out past the points pays on every 3-view scan where it fires (CD 69 against 843); the shell fired on
-one cloud (a cup lid, CD 38 against 1,356); Poisson for closed clouds and IMLS, held within
-`SHELL_DEPTH` of the points, for open ones pay on every condition (1-view scans: CD 348 against
-1,133 with Poisson, NC 0.734 against 0.599; 3-view: 73 against 289).""",
+`benchmarks/bench_plan.py --jobs 2`: each rule of a cloud's plan (`voro3d/pointcloud/plan.py`) turned the
+other way on the clouds where it applies, 8 dev meshes x 5 conditions, no normals (rerun 2026-12-06 with
+every rule, `hull` and `views` included). The smoothing pass pays on noisy clouds (CD 2.57 against 2.82,
+NC 0.954 against 0.914) and is a wash elsewhere; refusing a Poisson surface that flaps out past the
+points pays on 5 of the 6 3-view scans where it fires (CD 83 against 1,240; the lid abc_00000007 alone
+loses, 387 against 3.5); the shell fired on the lid only (5k points: CD 4.7 against 11.4, F1 0.49 against
+0.15; 0.5% noise: 11.0 against 16.7, F1 0.09 against 0.22); Poisson for clouds that read closed and IMLS
+for open ones pay on 5k points (1.9 against 56), a third missing (388 against 513), 1 view (254 against
+359, NC 0.787 against 0.754) and noise (2.6 against 25); from 3 views the two that differ split (the
+rocker-arm, closed, 32 -> 20 with IMLS; abc_00000005, open, 65 -> 20 with Poisson). `hull` and `views`
+as in `plan_hull`, `plan_hull_open` and `plan_views`.""",
     "plan_hull": """\
 `benchmarks/bench_plan.py --rules hull --jobs 2`: the plan's `hull` (the target cut back to the points'
 convex hull, `voro3d/pointcloud/hull.py`) on against `auto` (off), 28 dev meshes x 4 partial
