@@ -83,7 +83,7 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
         (``"check"`` the given ones, ``"trust"`` them, or ``"estimate"``), ``denoise`` (the pass
         that moves noisy points onto their smooth surface), ``filter`` (of a Poisson target),
         ``target`` (``"poisson"``, ``"imls"`` or ``"sheet"``) and ``hull`` (``"on"``: the target
-        cut back to the points' convex hull, as for one-sided scans; ``"off"``); a dict may set some, e.g.
+        cut back to the points' convex hull, which ``"auto"`` does for one-sided scans); a dict may set some, e.g.
         ``plan={"denoise": "off"}``. Fields left ``"auto"`` (all, by default) are decided from the
         cloud; ``progress`` prints the plan chosen. Meshes: must stay None.
     allow_open : bool
