@@ -110,3 +110,34 @@ def test_the_report_says_what_the_hull_would_cut(capsys):
         err = capsys.readouterr().err
         assert ("past the points' convex hull (plan hull on cuts it back" in err) is said, err
         assert ("and target imls with it closes it flat: scans from a few viewpoints" in err) is said, err
+
+
+def test_a_dome_seen_from_above_is_solid_down_to_its_rim_not_a_shell_under_its_top():
+    # The cut bounds an open cloud's solid, so no shell depth holds it: the solid fills the hull, a voxel
+    # out (1.19 of the cap's volume; with the depth limit as well, 0.66: the measurement beside SHELL_DEPTH).
+    rng = np.random.default_rng(1)
+    directions = rng.normal(size=(60_000, 3))
+    points = (directions / np.linalg.norm(directions, axis=1, keepdims=True))
+    points = points[points[:, 2] > 0.5][:20_000]  # a cap of a unit sphere, half a radius high
+    shape, target, info = reconstruct_points(points, grid=48, steps=40)
+    mesh = cloud_mesh(shape, target)
+    check_watertight(mesh)
+    assert info.level < 0.25 and info.plan.hull == "on"
+    assert 0.85 < mesh.get_volume() / (np.pi * 0.5**2 * (3.0 - 0.5) / 3.0) < 1.3
+
+
+def test_the_bounded_height_matches_every_plane_s_within_its_range():
+    # A noisy flat scan is all hull; the bounded height must give every plane's answer where it matters.
+    from voro3d.pointcloud.hull import _height, _height_within, _hull
+
+    rng = np.random.default_rng(2)
+    points = np.c_[rng.uniform(-0.8, 0.8, (3000, 2)), 0.002 * rng.normal(size=3000)]
+    hull, scene = _hull(points)
+    queries = rng.uniform(-1.0, 1.0, (20_000, 3)).astype(np.float32)
+    exact = _height(queries, hull.equations)
+    bounded = _height_within(queries, scene, hull.equations, 0.02, 0.05)
+    within = (exact >= 0.02) & (exact <= 0.05)
+    assert within.sum() > 100
+    np.testing.assert_array_equal(bounded[within], exact[within])
+    np.testing.assert_array_equal(bounded[~within] > 0.05, exact[~within] > 0.05)
+    assert np.all((bounded[~within] < 0.02) | (bounded[~within] > 0.05))

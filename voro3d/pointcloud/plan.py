@@ -44,8 +44,8 @@ class CloudPlan:
     target : {"auto", "poisson", "imls", "sheet"}
         The smooth surface the VoroMesh is fitted to and labelled by: screened Poisson, the IMLS
         field with the points' winding number behind it (a closed cloud's holes closed at
-        ``HOLE_LEVEL``; an open cloud held within its shell depth of the points where they do not
-        enclose it), or a shell at a small offset
+        ``HOLE_LEVEL``; an open cloud's held by the points' hull where ``hull`` cuts to it, else within
+        its shell depth of the points where they do not enclose it), or a shell at a small offset
         around the points (walls thinner than the spacing). ``"auto"``: Poisson when the oriented points
         enclose a volume (winding level over ``CLOSED_LEVEL``) and it does not flap out past them
         (``MAX_POISSON_ESCAPE``), else IMLS; then the shell where it fits the points much better

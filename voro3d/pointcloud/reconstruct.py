@@ -170,7 +170,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        ``SPLIT_POINTS`` points on, solved in two halves at once, one in a second process started
        with the call, :func:`~voro3d.pointcloud.poisson.poisson_surface`); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
-       held within each point's shell depth (its curvature's radius, at most ``SHELL_DEPTH``) of
+       held by the points' convex hull where ``plan.hull`` cuts to it (auto: open clouds), else
+       within each point's shell depth (its curvature's radius, at most ``SHELL_DEPTH``) of
        the points where they do not enclose it (a shell under the
        seen side, not a block out to the box), on a grid twice as fine as the VoroMesh grid,
        meshed by Marching Cubes. Either cut back to the points' convex hull where ``plan.hull``

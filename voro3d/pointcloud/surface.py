@@ -372,8 +372,11 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     if depth is not None:
         limit = depth_limit(distance, resolution, depth, nearest=nearest.reshape(field.shape))
         field = within(field, limit, step, rounding=SHELL_ROUNDING_NODES * step)
-        # Patches one viewpoint sees apart are one object; the limit must not cut the bridges.
+    if hole_level is None:
+        # An open cloud's patches one viewpoint sees apart are one object (a closed cloud's, two objects
+        # side by side, stay two); the limit must not cut the bridges.
         field = bridge(field, points, MAX_BRIDGE_GAP, min_support=min_support)
+    if limit is not None:
         limit = np.minimum(limit, field)
     # After the bridges: smoothed first, the tips of two patches drew back and one gap grew past
     # MAX_BRIDGE_GAP (cheburashka from 1 view, 0.241 -> 0.256: an ear cut off).

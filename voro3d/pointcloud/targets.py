@@ -80,11 +80,12 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
             target, why = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
     kind = "poisson" if target is not None else "imls"
     if target is None:
-        # Behind an open scan the solid is held within each point's shell depth (a shell under the
-        # seen side) unless they enclose it; a closed cloud's holes are closed at HOLE_LEVEL.
+        # Behind an open scan the solid is held by the points' hull where it is cut to it, else within
+        # each point's shell depth (a shell under the seen side); a closed cloud's holes are closed at
+        # HOLE_LEVEL. The measurement: beside SHELL_DEPTH.
         target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
                                 hole_level=max(level, HOLE_LEVEL) if closed else None,
-                                depth=None if closed else _shell_depth(points, normals, resolution))
+                                depth=None if closed or hull else _shell_depth(points, normals, resolution))
     if hull:
         target = clip_to_hull(target, points, resolution)
     if choice == "auto" and not target.dense:

@@ -185,21 +185,19 @@ CLOSED_LEVEL = 0.25
 # 0.899 / 0.677 -> 33.8 / 0.903 / 0.686 (thingi32_96481 269 -> 41). Rerun: bench_pointcloud.py
 # --conditions "range scan 3 views" --no-poisson --hole-level 0 (--shapes ... for the other meshes).
 HOLE_LEVEL = 0.42
-# The IMLS target of an open cloud (winding level under CLOSED_LEVEL) reaches no further than this
-# from the points, but where they enclose it (target_surface's depth): behind a one-sided scan the
-# winding number reads inside out to the box, a block that only a round object resembles. Range
-# scans of 12 dev meshes (bench_plan's 8, elephant, screwdriver, thingi32_44234, spot), grid 64,
-# mean CD with no limit / 0.0625 / 0.125 / 0.25 / 0.375: one view 1337 / 455 / 361 / 370 / 562 (CAD
-# parts 1073-5536 -> 96-487 at 0.125; round organic ones rise, bunny 385 -> 874, spot 96 -> 305),
-# NC 0.762 / 0.750 / 0.732 / 0.740 / 0.759, F1 0.301 / 0.376 / 0.342 / 0.318 / 0.310; three views
-# 259 -> 60.4 (0.0625) and 63.6 (0.125), NC 0.888 -> 0.890, F1 0.652 -> 0.653 (two balloons of
-# 1275-1278 gone, the rest unchanged); six views read closed (Poisson): unchanged. The real open
-# scans become plates and shells (a flat map of France scanned from one side: a block to the box
-# before). Rerun: bench_pointcloud.py --shell-depth.
+# The IMLS target of an open cloud (winding level under CLOSED_LEVEL) left uncut by the hull (plan hull
+# "off") reaches no further than this from the points, but where they enclose it (target_surface's depth):
+# behind a one-sided scan the winding number reads inside out to the box, a block that only a round object
+# resembles. Range scans of 12 dev meshes, grid 64, no cut, mean CD with no limit / 0.0625 / 0.125 / 0.25 /
+# 0.375: one view 1337 / 455 / 361 / 370 / 562 (CAD parts 1073-5536 -> 96-487 at 0.125; bunny 385 -> 874),
+# NC 0.762 / 0.750 / 0.732 / 0.740 / 0.759; three views 259 -> 63.6 (two balloons gone). Cut to the hull
+# (auto for open clouds), the hull bounds it and no limit applies: all 38 dev meshes from 1 view (2026-12-06,
+# no normals, grid 64), limit 0.125 / 0.25 / 0.5 / 1 / none: CD 390.8 / 303.6 / 267.2 / 252.5 / 252.5, NC
+# 0.776 / 0.800 / 0.811 / 0.823 / 0.823, F1 0.403 / 0.402 / 0.405 / 0.412 / 0.412 (none against 0.125: lower
+# CD on 35 of 38; the lid abc_00000007 131 -> 221, abc_00000008 63 -> 171), 0.89x the time.
 # Closed clouds keep no limit: the 20 clouds of the 38 dev meshes whose Poisson target is refused
 # (MAX_POISSON_ESCAPE's ablation below), limited at this depth too (2026-12-05): mean CD 65.9 ->
-# 89.7, NC 0.881 -> 0.857, F1 0.634 -> 0.572, lower CD on 4 (the lid abc_00000007 from 3 views,
-# whose points all lie on its top and read a level of 0.2505, 357 -> 83; abc_00000006 70 -> 54),
+# 89.7, NC 0.881 -> 0.857, F1 0.634 -> 0.572, lower CD on 4 (the lid from 3 views 357 -> 83),
 # and up to 9x higher on the rest (cow 7.4 -> 70, bunny 11 -> 92): their holes are closed, not cut.
 SHELL_DEPTH = 0.125
 # Each point's depth (surface.shell_depths: the radius of the seen surface's mean curvature) is at
