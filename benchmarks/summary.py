@@ -113,7 +113,10 @@ Rows merged from several runs; on 2026-12-05 (12:12-12:52, load 1.0-1.9) both me
 ran in one run on 4 meshes (abc_00000005, abc_00000008, fandisk, rocker arm) x 9 conditions: VoroMesh
 215 s against Open3D's pipeline 1026 s summed (0.21x), 161 s against 282 s (0.57x) on the 30 rows
 where Open3D's orientation finished within its 120 s (its pipeline took 10-81 s on 8 of them); on the dense
-rows the mesh is now split to the detail the points hold (clean 100k NC 0.981 -> 0.985).""",
+rows the mesh is now split to the detail the points hold (clean 100k NC 0.981 -> 0.985). Real scans
+rerun 2026-12-06 with open clouds held by their hull (`SHELL_DEPTH`): hippo2 5.37e-4, point_set_3
+1.70e-4, poste_france's kept points 3.24e-6 (Poisson 7.08e-4, 4.53e-3, 3.25e-5), normal agreement 0.973
+/ 0.993; poste_france, all hull, took 39 s (6 s before; 29 s under load once the hull's height was bounded).""",
     "adaptive": """\
 `benchmarks/bench_adaptive.py`: the adaptive band `grid="auto"` fits on a dense cloud (octree from
 128³ up to 32³ voxels, split where the target bends) against uniform bands of 48-128³, on 10⁶
@@ -223,7 +226,10 @@ summed (122 s against 58 s; the run before 156 s against 74 s, the same ratio on
 61% of it the target surface. Then `hull auto` cut open clouds back to the points' hull
 (`plan_hull_open`; the cut meshed flat where the hull's faces lie; 1- and 3-view rows rerun with all
 three methods, 2026-12-06): 1 view CD 210.7 -> 224.3, NC 0.747 -> 0.765, F1 0.386 -> 0.409; 3 views 45.2
--> 42.9 (abc_00000005, open, 93 -> 65); 2.09x (the cut 0.3-0.5 s a cloud).""",
+-> 42.9 (abc_00000005, open, 93 -> 65); 2.09x (the cut 0.3-0.5 s a cloud). Then an open cloud cut to its hull was held by the hull instead of a shell depth (`SHELL_DEPTH`'s
+measurement; 1-view rows and the open 3-view cloud rerun with all three methods, 2026-12-06): 1 view CD
+224.3 -> 138.7, NC 0.765 -> 0.813, F1 0.409 -> 0.408, the unseen back closed flat at the hull, not in
+lobes; abc_00000005 from 3 views 64.9 -> 19.5; 2.09x.""",
     "pointcloud_dense_range": """\
 `bench_pointcloud.py --conditions "dense range scan 1 view"`: one view of a depth camera's frame
 (1600x1200 pixels, ~300k points, depth noise a quarter of the spacing) on the 12 meshes of
@@ -264,7 +270,9 @@ shell's 0.036; alpha wrap 1027). The other thin-walled CAD parts (abc_00000006,
 cad_nmc_sample0) stay near Open3D from 3 views (70-72 against 70-71) and under it from 6 (22-23
 against 71-74). With `hull auto` cutting open clouds (1- and 3-view rows rerun, all three methods):
 1 view CD 413 -> 438, NC 0.780 -> 0.791, F1 0.388 -> 0.411; 3 views 66.8 -> 64.2 (abc_00000001 70 ->
-28); 2.07x.""",
+28); 2.07x. Then an open cloud cut to its hull held by the hull, not a shell depth (1-view rows and the
+open 3-view cloud rerun, all three methods): 1 view CD 437.6 -> 297.2 (alpha wrap 721), NC 0.791 ->
+0.832, F1 0.411 -> 0.423; abc_00000001 from 3 views 28.3 -> 29.6; 1.99x.""",
     "pointcloud_range_rest": """\
 The range conditions on the other 10 dev meshes (with `pointcloud_range` and `pointcloud_range_more`,
 all 38), all three methods in one run (2026-12-06; the mushrooms' rows rerun for the picture, with
@@ -280,7 +288,9 @@ has the lower CD on all 18 that keep Poisson (homer 105 -> 11, screwdriver 38 ->
 (0.028-0.079 against 0.0005-0.062) nor the winding level (0.32-0.46 against 0.34-0.48) tells the two
 apart. With `hull auto` cutting open clouds (1- and 3-view rows rerun, all three methods): 1 view CD
 487 -> 516, NC 0.737 -> 0.765, F1 0.364 -> 0.384; 3 views 47.6 -> 45.7 (thingi32_76277 33 -> 14);
-2.00x.""",
+2.00x. Then held by the hull, not a shell depth (1-view rows and the open 3-view cloud rerun, all three
+methods): 1 view CD 516 -> 317, NC 0.765 -> 0.820, F1 0.384 -> 0.398; thingi32_76277 from 3 views 14.0
+-> 15.1; 1.99x.""",
     "scenes": """\
 `benchmarks/bench_scenes.py`: each of the 12 meshes of `pointcloud_range` on a plate (1.6x its footprint),
 scanned from 1 or 3 viewpoints 30 degrees above it, as a turntable or a handheld scanner sees an object
@@ -301,7 +311,8 @@ no longer hangs in drips, `surface._spread_depths`): CD 122.7 / 74.0, NC 0.829 /
 top, whose unseen underside our shell guessed about 3x too deep) and NC from one view. Since `hull auto`
 cuts open clouds back to the points' hull (`plan_hull_open`), the table is as thin as its seen edges:
 CD 36.6 / 22.7, NC 0.864 / 0.933, F1 0.441 / 0.504 against Poisson's 328 / 141, 0.832 / 0.884, 0.413 /
-0.546 (the cut meshed flat where the hull's faces lie), every output closed and in one piece.""",
+0.546 (the cut meshed flat where the hull's faces lie), every output closed and in one piece. Then an open cloud's solid held by its hull, not a shell depth (rerun, both methods): CD 30.1 /
+23.5, NC 0.898 / 0.937, F1 0.434 / 0.498.""",
     "pointcloud_islands": """\
 `benchmarks/bench_islands.py` rebuilds the clouds of `pointcloud.json` and `pointcloud_range.json`
 and counts their islands (points within 3 median spacings joined, after our outlier test), beside
