@@ -155,22 +155,22 @@ enclose a volume (for open ones it is on since `plan_hull_open`).
 The picture (`--pictures-only --pictures SHAPE:CONDITION ...`): the arm's hand, a ball without the
 cut, a block with it; the lid's underside; the cut-off back of a third-missing cow flattened.""",
     "plan_hull_open": """\
-`benchmarks/bench_plan.py --rules hull views` on all 38 dev meshes from 1 and 3 views (2026-12-06, one
-run, the cut meshed flat), `auto` cutting open clouds back to the hull. Every 1-view scan reads open
-(its winding level under `CLOSED_LEVEL`): the cut trades CD (368.8 uncut -> 390.8, lower on 9 of 38:
-the lobes behind round parts) for NC (0.758 -> 0.776) and F1 (0.381 -> 0.403). From 3 views the 3
-clouds that read open gain (65.8 -> 35.7, NC 0.844 -> 0.896), as do objects on a table (`scenes`: CD
-122.7 / 74.1 -> 36.6 / 22.7 from 1 / 3 views), whose table comes back as thin as its seen edges; the
-35 that read closed stay uncut by `auto` (turned on: 54.0 -> 32.3, better on 27, but a third missing
-loses its continuation past the cut: `plan_hull`). Its cost: the 2 of 38 third-missing clouds that
-read open (thingi32_75656 388.5 -> 508.6, thingi32_75662 381.9 -> 446.5). Every output closed and in
-one piece.""",
+`benchmarks/bench_plan.py --rules hull views --jobs 2` on all 38 dev meshes from 1 and 3 views
+(2026-12-06, one run), `auto` cutting open clouds back to the hull and, cut, holding their solid by
+the hull instead of a shell depth (`SHELL_DEPTH`). Every 1-view scan reads open (its winding level
+under `CLOSED_LEVEL`): cut, CD 252.5 against 368.8 uncut (lower on 34 of 38), NC 0.823 against 0.758,
+F1 0.412 against 0.381 (the cut with the shell depth kept, the run before: 390.8 / 0.776 / 0.403).
+From 3 views the 3 clouds that read open gain (65.8 -> 21.4, NC 0.844 -> 0.924), as do objects on a
+table (`scenes`), whose table comes back as thin as its seen edges; the 35 that read closed stay
+uncut by `auto` (turned on: 54.0 -> 32.3, better on 27, but a third missing loses its continuation
+past the cut: `plan_hull`). Its cost: the 2 of 38 third-missing clouds that read open
+(thingi32_75656 388.5 -> 494.4, thingi32_75662 381.9 -> 427.1). Every output closed and in one piece.""",
     "plan_views": """\
 `benchmarks/bench_plan.py --rules views`: the plan the README gives for scans from a few viewpoints,
 the IMLS target cut back to the hull (`target imls, hull on`), against `auto` on all 38 dev meshes x
 the range conditions and a third missing (1 / 3 views rerun 2026-12-06 with open clouds cut by
-`auto`, which is then this plan; 6 views and a third missing from the run before, the 4 third-missing
-clouds with an IMLS target rerun). From 3 views it pays on 30 of the 35 that read closed (CD 54.0 ->
+`auto` and held by the hull, which is then this plan; 6 views and a third missing from the run before,
+the 4 third-missing clouds with an IMLS target rerun). From 3 views it pays on 30 of the 35 that read closed (CD 54.0 ->
 22.6, NC 0.921 -> 0.937, F1 0.682 -> 0.723, 0.65x the time: no Poisson solve): `auto`'s Poisson
 swells under the undersides no view saw (the statue thingi32_78671's base: 59.8 -> 4.5; homer 105 ->
 11). Where the views cover the object (6 views: 2.58 -> 7.52, NC -0.013) or a part was cut away (339 ->

@@ -255,11 +255,11 @@ MAX_BRIDGE_GAP = 0.25
 MAX_POISSON_ESCAPE = 0.08
 # With plan hull "on", a target's solid more than this many nodes of its grid (a VoroMesh voxel at
 # FIELD_REFINEMENT 2) outside the points' convex hull is cut away (voro3d.pointcloud.hull); "auto" cuts an
-# open cloud's (level under CLOSED_LEVEL). Off -> on, 38 dev meshes, no normals, grid 64, cut meshed flat
-# (plan_hull_open.md, 2026-12-06): 1 view CD 368.8 -> 390.8, NC 0.758 -> 0.776, F1 0.381 -> 0.403 (lower CD
-# on 9), 3-view scans that read open (3) 65.8 -> 35.7; on a table (scenes.md) 1 / 3 views CD 122.7 / 74.1 ->
-# 36.6 / 22.7 (the table as thin as its seen edges); the 2 third-missing clouds that read open lose (388.5 ->
-# 508.6, 381.9 -> 446.5); all closed, one piece. Closed 3-view scans gain too (54.0 -> 32.3, 27 of 35), a third
+# open cloud's (level under CLOSED_LEVEL), whose solid it then holds (SHELL_DEPTH). Off -> on, 38 dev meshes,
+# no normals, grid 64 (plan_hull_open.md, 2026-12-06): 1 view CD 368.8 -> 252.5, NC 0.758 -> 0.823, F1 0.381 ->
+# 0.412 (lower CD on 34), 3-view scans that read open (3) 65.8 -> 21.4; on a table (scenes.md) 1 / 3 views CD
+# 122.7 / 74.1 -> 30.1 / 23.5 (the table as thin as its seen edges); the 2 third-missing clouds that read open
+# lose (388.5 -> 494.4, 381.9 -> 427.1); all closed, one piece. Closed 3-view scans gain too (54.0 -> 32.3, 27 of 35), a third
 # missing loses (28 meshes, plan_hull.md: 325 -> 451, NC -0.019, 1 of 28), and neither the level (0.14-0.46 against
 # 0.31-0.48), the share of the solid cut (0-0.27 both), the closure's mean reach past the hull (0.04-0.11
 # against 0.03-0.24) nor this margin (homer's 3-view scan 53 / 96 / 106 at 4 / 8 / 16 nodes, spot's third
