@@ -194,7 +194,7 @@ HOLE_LEVEL = 0.42
 # (auto for open clouds), the hull bounds it and no limit applies: all 38 dev meshes from 1 view (2026-12-06,
 # no normals, grid 64), limit 0.125 / 0.25 / 0.5 / 1 / none: CD 390.8 / 303.6 / 267.2 / 252.5 / 252.5, NC
 # 0.776 / 0.800 / 0.811 / 0.823 / 0.823, F1 0.403 / 0.402 / 0.405 / 0.412 / 0.412 (none against 0.125: lower
-# CD on 35 of 38; the lid abc_00000007 131 -> 221, abc_00000008 63 -> 171), 0.89x the time.
+# CD on 35 of 38; the lid abc_00000007 131 -> 216, abc_00000008 63 -> 181), 0.89x the time (poste_france 6 -> 39 s).
 # Closed clouds keep no limit: the 20 clouds of the 38 dev meshes whose Poisson target is refused
 # (MAX_POISSON_ESCAPE's ablation below), limited at this depth too (2026-12-05): mean CD 65.9 ->
 # 89.7, NC 0.881 -> 0.857, F1 0.634 -> 0.572, lower CD on 4 (the lid from 3 views 357 -> 83),
