@@ -140,10 +140,10 @@ NC 0.954 against 0.914) and is a wash elsewhere; refusing a Poisson surface that
 points pays on 5 of the 6 3-view scans where it fires (CD 83 against 1,240; the lid abc_00000007 alone
 loses, 387 against 3.5); the shell fired on the lid only (5k points: CD 4.7 against 11.4, F1 0.49 against
 0.15; 0.5% noise: 11.0 against 16.7, F1 0.09 against 0.22); Poisson for clouds that read closed and IMLS
-for open ones pay on 5k points (1.9 against 56), a third missing (388 against 513), 1 view (254 against
-359, NC 0.787 against 0.754) and noise (2.6 against 25); from 3 views the two that differ split (the
-rocker-arm, closed, 32 -> 20 with IMLS; abc_00000005, open, 65 -> 20 with Poisson). `hull` and `views`
-as in `plan_hull`, `plan_hull_open` and `plan_views`.""",
+for open ones pay on 5k points (1.9 against 56), a third missing (388 against 513), 1 view (170 against
+359, NC 0.823 against 0.754, with open clouds held by their hull) and noise (2.6 against 25); from 3
+views only the rocker-arm differs (closed, 32 -> 20 with IMLS). `hull` and `views` as in `plan_hull`,
+`plan_hull_open` and `plan_views` (the cut on 1-view clouds: 170 against 238 uncut, better on 7 of 8).""",
     "plan_hull": """\
 `benchmarks/bench_plan.py --rules hull --jobs 2`: the plan's `hull` (the target cut back to the points'
 convex hull, `voro3d/pointcloud/hull.py`) on against `auto` (off), 28 dev meshes x 4 partial
