@@ -248,8 +248,9 @@ with `hull auto` cutting open clouds back to the points' hull (`plan_hull_open`)
 0.429, 1.29x Open3D's pipeline (the 1.12x above paired a VoroMesh rerun with Open3D's earlier times);
 the cut then meshed flat (VoroMesh side rerun 40 minutes later, Open3D's from that run): 283.5, 1.25x. With open clouds held by their hull, not a shell depth (VoroMesh side rerun alone on the
 machine, 2026-12-06, Open3D's times from the run before): CD 283.5 -> 139.1, NC 0.768 -> 0.823, F1 0.429
-both, closed, one piece; but 2.13x Open3D's pipeline: the target stage, which cuts a solid that now
-fills the hull, is 67% of it.""",
+both, closed, one piece; but 2.13x Open3D's pipeline: three CAD parts (abc_00000005, fandisk,
+rocker-arm) 17-21 -> 61-68 s, the rest as before; the cut reads the target's inside at every node
+past the hull of a solid that now fills it (`clip_to_hull`: 25 s of fandisk's 39 s in a profile).""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on
