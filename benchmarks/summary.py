@@ -250,7 +250,14 @@ the cut then meshed flat (VoroMesh side rerun 40 minutes later, Open3D's from th
 machine, 2026-12-06, Open3D's times from the run before): CD 283.5 -> 139.1, NC 0.768 -> 0.823, F1 0.429
 both, closed, one piece; but 2.13x Open3D's pipeline: three CAD parts (abc_00000005, fandisk,
 rocker-arm) 17-21 -> 61-68 s, the rest as before; the cut reads the target's inside at every node
-past the hull of a solid that now fills it (`clip_to_hull`: 25 s of fandisk's 39 s in a profile).""",
+past the hull of a solid that now fills it (`clip_to_hull`: 25 s of fandisk's 39 s in a profile).
+There, the nearest point of a query deep in that solid, far from every point, was searched for
+exactly, only to find it beyond the IMLS band; now the search stops at the widest band, and the
+proxy mesh is moved onto the IMLS zero set only within it (`TargetSurface._in_band`): the three
+parts 21-28 s, both methods in one run (2026-12-06): CD 139.6, NC 0.828, F1 0.428, **0.81x**
+Open3D's pipeline, whose side took 275 s here against 174 s in the run before (against those
+times, 1.37x). The band's own effect, VoroMesh side alone: 1 / 3 views of `pointcloud_range` CD
+138.7 -> 138.6 / 39.10 -> 39.16, NC +0.002 / +0.001; these frames 139.1 -> 139.6, NC 0.823 -> 0.828.""",
     "pointcloud_range_more": """\
 The range conditions of `pointcloud_range` on 16 dev meshes outside its 12, both methods and
 `alpha_wrap_3`: the range-scan rules on meshes they were not set on (VoroMesh side rerun on

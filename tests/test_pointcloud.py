@@ -896,6 +896,19 @@ def test_the_far_field_is_a_distance_to_the_winding_level_set(sphere_cloud):
     assert np.all((slope > 0.6) & (slope < 1.6))
 
 
+def test_project_moves_points_within_the_band_only():
+    """A plate seen from above (z = 0, |x|, |y| <= 0.3): a point just above it moves onto it; one as
+    high above the plate's plane but 0.3 past its rim, beyond the IMLS band, stays (the nearest
+    point's plane, extended there, is no surface)."""
+    rng = np.random.default_rng(0)
+    points = np.c_[rng.uniform(-0.3, 0.3, (4000, 2)), np.zeros(4000)]
+    normals = np.tile([0.0, 0.0, 1.0], (4000, 1))
+    target = target_surface(points, normals, np.full(4000, 0.03), 48, level=0.0)
+    queries = np.array([[0.0, 0.05, 0.01], [0.6, 0.05, 0.01], [0.05, -0.6, 0.01]])
+    moved = target.project(queries)
+    assert abs(moved[0, 2]) < 1e-3 and np.array_equal(moved[1:], queries[1:])
+
+
 def test_smooth_maximum_rounds_the_crease_only():
     a = np.linspace(-1.0, 1.0, 2001)
     b = -a
