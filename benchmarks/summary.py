@@ -243,7 +243,10 @@ surface stage 225 -> 139 s, 1.08x, CD 277.7), then the kernels held to a third o
 (`surface.target_surface`; VoroMesh side rerun, Open3D's from the run before): 277.6 / 0.758 /
 0.418, 1.12x. At 10^6 points (the bunny, 2600x1950 pixels, not in the table) the kernels were a
 tenth of a node and the shell won again (F1 0.059); now 68 s and 1.38 GB peak against Open3D's
-102 s, CD 820 / NC 0.784 / F1 0.419 against 1275 / 0.675 / 0.413. Rerun, both methods in one run,
+102 s, CD 820 / NC 0.784 / F1 0.419 against 1275 / 0.675 / 0.413; with the hull's cut and the
+bounded band below (2026-12-06, one method after the other, each in a process of its own): 57 s and
+1.46 GB peak (the process's, the cloud's 0.55 GB included) against 80.5 s, CD 522 / NC 0.811 / F1
+0.392 against 1724 / 0.615 / 0.323. Rerun, both methods in one run,
 with `hull auto` cutting open clouds back to the points' hull (`plan_hull_open`): 283.4 / 0.768 /
 0.429, 1.29x Open3D's pipeline (the 1.12x above paired a VoroMesh rerun with Open3D's earlier times);
 the cut then meshed flat (VoroMesh side rerun 40 minutes later, Open3D's from that run): 283.5, 1.25x. With open clouds held by their hull, not a shell depth (VoroMesh side rerun alone on the
