@@ -66,7 +66,7 @@ def clip_to_hull(target, points, resolution: int):
     size, node, margin = resolution, 2.0 / (resolution - 1), _margin(resolution)
     vertices = target.project(target.vertices)
     outside = _outside(scene, vertices)
-    if not np.any(_height(vertices[outside], hull.equations) > margin):
+    if not np.any(_height_within(vertices[outside], scene, hull.equations, margin, margin) > margin):
         # The solid's boundary is within the margin of the hull, so is the solid.
         return target
     # The solid outside the hull is bounded by the triangles that leave it and the hull's faces
@@ -78,7 +78,19 @@ def clip_to_hull(target, points, resolution: int):
     nodes = index * node - 1.0
     keep = _outside(scene, nodes)
     keep[keep] = target.inside(nodes[keep])
-    keep[keep] = _height_within(nodes[keep], scene, hull.equations, margin - node, margin + node) > margin
+
+    def past(queries):
+        # Signed distance past the cut, bounded (exact within a node of it); read once per node: the
+        # mesh of the cut reads the nodes the carve read (poste_france: 0.9 of 1.0 million again).
+        index = np.rint((queries + 1.0) / node).astype(np.int64)
+        value = heights[tuple(index.T)]
+        unknown = np.isnan(value)
+        value[unknown] = _height_within(queries[unknown], scene, hull.equations, margin - node, margin + node)
+        heights[tuple(index[unknown].T)] = value[unknown]
+        return value - margin
+
+    heights = np.full((size,) * 3, np.nan, np.float32)
+    keep[keep] = past(nodes[keep]) > 0
     if not keep.any():
         return target
     index = index[keep]
@@ -86,8 +98,7 @@ def clip_to_hull(target, points, resolution: int):
     carved[tuple(index.T)] = True
     # Triangles past the cut go too, with slivers of solid thinner than a node that no node marked.
     beyond = _beyond(vertices[target.triangles].mean(axis=1), scene, hull.equations, margin + node)
-    mesh = carved_mesh(target.inside, vertices, target.triangles[~beyond], carved,
-                       past=lambda queries: _height_within(queries, scene, hull.equations, margin - node, margin + node) - margin)
+    mesh = carved_mesh(target.inside, vertices, target.triangles[~beyond], carved, past=past)
     return ClippedSurface(target, *mesh, carved, scene, hull.equations, margin)
 
 
