@@ -389,3 +389,17 @@ def test_two_boxes_touching_along_an_edge_are_read_by_ray_parity(monkeypatch):
     monkeypatch.setattr(InsideOutside, "_winding_inside", lambda self, points: pytest.fail("winding everywhere"))
     inside = queries.occupancy(np.array([[0.5, 0.5, 0.5], [1.5, 1.5, 0.5], [1.5, 0.5, 0.5], [0.5, 1.5, 0.5]]))
     assert inside.tolist() == [True, True, False, False]
+
+
+def test_nearest_distance_is_the_exact_nearest_point_distance():
+    from scipy.spatial import cKDTree
+
+    from voro3d.queries import nearest_distance
+
+    rng = np.random.default_rng(0)
+    # A dense sheet and queries far off it, where the two searches differ most in speed.
+    points = np.c_[rng.uniform(-1, 1, (20000, 2)), rng.normal(0, 1e-3, 20000)]
+    queries = np.r_[rng.uniform(-1, 1, (500, 3)) + [0, 0, 2], points[:100]]
+    found = nearest_distance(points, queries)
+    assert found.shape == (600,) and np.allclose(found, cKDTree(points).query(queries)[0], rtol=1e-12, atol=0)
+    assert np.all(found[500:] == 0.0)

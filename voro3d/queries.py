@@ -15,7 +15,7 @@ from .topology import welded_edge_counts
 
 __all__ = ["InsideOutside", "winding_number", "sdf_grid", "point_areas", "point_winding_number",
            "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "WINDING_THREADS", "FAST_WINDING_MARGIN", "KNN_BLOCK_ENTRIES",
-           "knn_blocks", "neighbour_table", "spatial_order"]
+           "knn_blocks", "nearest_distance", "neighbour_table", "spatial_order"]
 
 # Ray directions of the inside test: mutually orthogonal and far from the axes and diagonals, so
 # rays from grid-aligned queries do not run along the edges of grid-aligned (CAD, voxel-derived)
@@ -337,6 +337,22 @@ def knn_blocks(tree, k, *, sample: int | None = None, block: int | None = None):
         chosen = order[start:start + block]
         distance, neighbour = tree.query(tree.data[chosen], k=k, workers=-1)
         yield chosen, distance.reshape(len(chosen), -1), neighbour.reshape(len(chosen), -1)
+
+
+def nearest_distance(points, queries) -> np.ndarray:
+    """(q,) float64: the distance from each of ``queries`` (q, 3) to the nearest of ``points`` (n, 3).
+
+    Open3D's search index, not a cKDTree: queries far from a dense sheet of points (samples of a
+    closure behind a one-view scan) meet many leaves at nearly the same distance, where scipy's
+    tree is slow (20,000 such samples against 300,000 points: 1.78 s against 0.19 s, index
+    included; the same distances).
+    """
+    import open3d as o3d
+
+    search = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(np.ascontiguousarray(points, np.float64)))
+    search.knn_index()
+    _, squared = search.knn_search(o3d.core.Tensor(np.ascontiguousarray(queries, np.float64)), 1)
+    return np.sqrt(squared.numpy()[:, 0])
 
 
 def spatial_order(points, *, bits: int = 10) -> np.ndarray:

@@ -133,23 +133,20 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     ``distance``: the distance of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point
     to ``target``, when already measured.
     """
-    from scipy.spatial import cKDTree
-
     from .preprocess import check_stride
 
     sample = points[::check_stride(len(points))]
     to_target = float(np.mean(target.distance(sample) if distance is None else distance))
     if to_target <= SHEET_POINTS_GATE * spacing:
         return None
-    tree = cKDTree(points)
-    strays = _surface_to_points(target, tree)
+    strays = _surface_to_points(target, points)
     if strays <= SHEET_SURFACE_GATE * spacing:
         return None
     sheet = sheet_target(points, spacing, resolution)
     to_sheet = float(np.mean(sheet.distance(sample)))
     if to_sheet > SHEET_NEAR * to_target:
         return None
-    return sheet if to_sheet + _surface_to_points(sheet, tree) < SHEET_WIN * (to_target + strays) else None
+    return sheet if to_sheet + _surface_to_points(sheet, points) < SHEET_WIN * (to_target + strays) else None
 
 
 def sheet_target(points, spacing: float, resolution: int):
@@ -159,9 +156,10 @@ def sheet_target(points, spacing: float, resolution: int):
     return sheet_surface(points, max(grid_voxel(resolution), SHEET_OFFSET * spacing), resolution)
 
 
-def _surface_to_points(target, tree, n_samples: int = 20_000) -> float:
-    """Mean distance from the target surface (area-uniform samples) to the nearest point."""
+def _surface_to_points(target, points, n_samples: int = 20_000) -> float:
+    """Mean distance from the target surface (area-uniform samples) to the nearest of ``points``."""
+    from ..queries import nearest_distance
     from ..sampling import sample_surface
 
     samples, _ = sample_surface((target.vertices, target.triangles), n_samples, seed=0)
-    return float(np.mean(tree.query(samples, workers=-1)[0]))
+    return float(np.mean(nearest_distance(points, samples)))
