@@ -116,7 +116,10 @@ where Open3D's orientation finished within its 120 s (its pipeline took 10-81 s 
 rows the mesh is now split to the detail the points hold (clean 100k NC 0.981 -> 0.985). Real scans
 rerun 2026-12-06 with open clouds held by their hull (`SHELL_DEPTH`): hippo2 5.37e-4, point_set_3
 1.70e-4, poste_france's kept points 3.24e-6 (Poisson 7.08e-4, 4.53e-3, 3.25e-5), normal agreement 0.973
-/ 0.993; poste_france, all hull, took 39 s (6 s before; 29 s under load once the hull's height was bounded).""",
+/ 0.993; poste_france, all hull, took 39 s (6 s before; 29 s under load once the hull's height was bounded).
+Rerun 2026-12-06 evening with the IMLS band read by a bounded search and the height past the hull read
+once per node: hippo2 5.44e-4, point_set_3 1.72e-4, poste_france's kept points 9.99e-6 (the proxy mesh
+moved onto the IMLS zero set within the band only), the same Poisson figures; poste_france 7.6 s.""",
     "adaptive": """\
 `benchmarks/bench_adaptive.py`: the adaptive band `grid="auto"` fits on a dense cloud (octree from
 128³ up to 32³ voxels, split where the target bends) against uniform bands of 48-128³, on 10⁶
