@@ -203,7 +203,14 @@ Summed, VoroMesh 222 s against 287 s (0.77x). One row was capped (thingi32_75655
 noise 2.5x, 1 and 3 views 3.2x and 2.3x (3.9x and 2.7x before; Open3D takes 0.5-2.6 s there, our fit
 alone 0.6-0.9 s), the density ramp 0.36x and 2% outliers 0.71x (Open3D's orientation of 50k-100k points).""",
     "pointcloud_dense38": """\
-Dense clean 100k-point clouds of all 38 dev meshes, VoroMesh only.""",
+Dense clean 100k-point clouds of all 38 dev meshes, VoroMesh only (`python
+benchmarks/bench_pointcloud.py --conditions "clean 100k" --no-poisson`). On 2026-12-05 with the mesh
+split to the detail the points hold (`resolution.refine_levels`): CD 0.6513, NC 0.9855, F1 0.9386.
+Rerun 2026-12-06 evening on the code as it stands (quiet machine, 8.3 s a cloud): CD 0.6554, NC
+0.9854, F1 0.9387, all closed and in one piece; per cloud within 2% but organic_camel_b, 0.397 ->
+0.641 (NC 0.982 -> 0.980), from the orientation's patches joined into parts (c616212, 2026-12-05:
+its wrong-signed normals 0.21% -> 0.18%, the Poisson target changed near its thin parts), and
+abc_00000001 2.36 -> 2.26.""",
     "pointcloud_range": """\
 `bench_pointcloud.py`'s virtual range scanner (`range_scan`: Open3D pinhole rays from 1, 3 or 6
 viewpoints, grazing hits dropped, depth noise along the ray) on 12 dev meshes, both methods in one
@@ -232,7 +239,11 @@ three methods, 2026-12-06): 1 view CD 210.7 -> 224.3, NC 0.747 -> 0.765, F1 0.38
 -> 42.9 (abc_00000005, open, 93 -> 65); 2.09x (the cut 0.3-0.5 s a cloud). Then an open cloud cut to its hull was held by the hull instead of a shell depth (`SHELL_DEPTH`'s
 measurement; 1-view rows and the open 3-view cloud rerun with all three methods, 2026-12-06): 1 view CD
 224.3 -> 138.7, NC 0.765 -> 0.813, F1 0.409 -> 0.408, the unseen back closed flat at the hull, not in
-lobes; abc_00000005 from 3 views 64.9 -> 19.5; 2.09x.""",
+lobes; abc_00000005 from 3 views 64.9 -> 19.5; 2.09x. Every row rerun with all three methods in one
+run after the IMLS band was read with a bounded search and the proxy mesh projected within it
+(`TargetSurface._in_band`; 2026-12-06 evening): CD 138.6 / 39.2 / 1.29, NC 0.815 / 0.917 / 0.972,
+F1 0.408 / 0.695 / 0.938 from 1 / 3 / 6 views; **1.93x** Open3D's pipeline (134 s against 70 s),
+62% of ours the target surface.""",
     "pointcloud_dense_range": """\
 `bench_pointcloud.py --conditions "dense range scan 1 view"`: one view of a depth camera's frame
 (1600x1200 pixels, ~300k points, depth noise a quarter of the spacing) on the 12 meshes of
@@ -289,7 +300,10 @@ against 71-74). With `hull auto` cutting open clouds (1- and 3-view rows rerun, 
 1 view CD 413 -> 438, NC 0.780 -> 0.791, F1 0.388 -> 0.411; 3 views 66.8 -> 64.2 (abc_00000001 70 ->
 28); 2.07x. Then an open cloud cut to its hull held by the hull, not a shell depth (1-view rows and the
 open 3-view cloud rerun, all three methods): 1 view CD 437.6 -> 297.2 (alpha wrap 721), NC 0.791 ->
-0.832, F1 0.411 -> 0.423; abc_00000001 from 3 views 28.3 -> 29.6; 1.99x.""",
+0.832, F1 0.411 -> 0.423; abc_00000001 from 3 views 28.3 -> 29.6; 1.99x. Every row rerun, all three
+methods in one run, with the IMLS band's bounded search (2026-12-06 evening): 1 / 3 / 6 views CD 297.3
+/ 64.7 / 4.09 (alpha wrap 721.0 / 51.2 / 6.50; the lid from 3 views 387 -> 393), NC 0.833 / 0.926 /
+0.965; **1.95x** Open3D's pipeline (192 s against 99 s).""",
     "pointcloud_range_rest": """\
 The range conditions on the other 10 dev meshes (with `pointcloud_range` and `pointcloud_range_more`,
 all 38), all three methods in one run (2026-12-06; the mushrooms' rows rerun for the picture, with
