@@ -78,6 +78,7 @@ def clip_to_hull(target, points, resolution: int):
     nodes = index * node - 1.0
     keep = _outside(scene, nodes)
     keep[keep] = target.inside(nodes[keep])
+    heights = np.full((size,) * 3, np.nan, np.float32)
 
     def past(queries):
         # Signed distance past the cut, bounded (exact within a node of it); read once per node: the
@@ -89,7 +90,6 @@ def clip_to_hull(target, points, resolution: int):
         heights[tuple(index[unknown].T)] = value[unknown]
         return value - margin
 
-    heights = np.full((size,) * 3, np.nan, np.float32)
     keep[keep] = past(nodes[keep]) > 0
     if not keep.any():
         return target

@@ -15,6 +15,7 @@ field reads outside, the jump between the two is blurred over a node or two
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -163,18 +164,24 @@ class TargetSurface(GridSurface):
         queries[free[small]] += move[small]
         return queries
 
+    @cached_property
+    def _tree(self):
+        """A kd-tree of ``points``, built once for every ``inside`` and ``project`` call."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.points)
+
     def _in_band(self, queries, rows):
         """``(rows, tree)``: the ``rows`` of ``queries`` within ``IMLS_BAND`` kernel widths of their
         nearest point, and a kd-tree of the points. The search is bounded by the widest band: a query
         deep in a solid that fills a hull, far from every point, is slow to resolve exactly (the
         dense frame of fandisk from one view: 31 of 69 s) and outside the band either way."""
-        from scipy.spatial import cKDTree
-
-        tree = cKDTree(self.points)
-        distance, nearest = tree.query(queries[rows], distance_upper_bound=IMLS_BAND * self.widths.max(), workers=-1)
+        # A hair past the band: scipy's bound is strict, the band's edge is not.
+        bound = np.nextafter(IMLS_BAND * self.widths.max(), np.inf)
+        distance, nearest = self._tree.query(queries[rows], distance_upper_bound=bound, workers=-1)
         found = np.isfinite(distance)
         rows, distance, nearest = rows[found], distance[found], nearest[found]
-        return rows[distance <= IMLS_BAND * self.widths[nearest]], tree
+        return rows[distance <= IMLS_BAND * self.widths[nearest]], self._tree
 
     def _held_at(self, index: np.ndarray) -> np.ndarray:
         """(q, 3) grid indices -> (q,) bool: whether the nearest node is ``held``."""
