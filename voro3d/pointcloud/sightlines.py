@@ -240,9 +240,12 @@ def _carve_grid(target, solid, origins, directions, length, points, normals, tre
     carved = _among(piece, np.unique(piece[seen])) & solid
     where = np.argwhere(carved)
     position = where * node - 1.0
-    distance, nearest = tree.query(position, workers=-1)
-    behind = np.einsum("ij,ij->i", position - points[nearest], normals[nearest]) < 0
-    carved[tuple(where[behind & (distance < 2.0 * node)].T)] = False
+    # Bounded: the carve reaches deep into the solid, where an exact nearest point is slow to find
+    # (0.9 of 2.2 s on a 3-view scan of thingi32_72960) and not needed.
+    distance, nearest = tree.query(position, distance_upper_bound=2.0 * node, workers=-1)
+    near = np.flatnonzero(distance < 2.0 * node)
+    behind = np.einsum("ij,ij->i", position[near] - points[nearest[near]], normals[nearest[near]]) < 0
+    carved[tuple(where[near[behind]].T)] = False
     return carved
 
 
