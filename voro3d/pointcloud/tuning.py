@@ -79,7 +79,12 @@ AUTO_GRID_RANGE = (32, 128)
 COARSEST_GRID = 32
 BAND_TOLERANCE = 0.05
 # The target surface's resolution follows the grid up to this one (Poisson depth 8), finer only
-# for dense points (TARGET_CELL_SPACINGS).
+# for dense points (TARGET_CELL_SPACINGS). Its Poisson depth is that of four nodes a voxel (depth 8
+# at grid 64): depth 7 instead, the 12 benchmark meshes at grid 64, no normals (2026-12-06, one run
+# after the other, the first beside other work), mean CD / NC / F1: clean 20k 0.635 / 0.973 / 0.951 ->
+# 0.680 / 0.970 / 0.945, 0.5% noise 1.361 / 0.951 / 0.814 -> 1.520 / 0.944 / 0.787, 6-view range scans
+# 1.286 / 0.972 / 0.938 -> 1.394 / 0.969 / 0.932 (cow 0.65 -> 0.79, thingi32_75655 0.92 -> 1.27),
+# 3-view ones 39.2 -> 39.8 (most refuse Poisson); the whole call 0.71x the time (223 -> 158 s).
 MAX_TARGET_GRID = 64
 # The Poisson target goes finer than MAX_TARGET_GRID asks while its octree cells stay this many
 # median spacings wide (pointcloud.poisson.poisson_depth): dense clouds hold the detail. 1M oriented
