@@ -97,7 +97,7 @@ void check_real_pair(const py::array& samples, const py::array& generators) {
 
 template <typename Real, typename Index>
 double voroloss_impl(const py::array& samples_in, const py::array& generators_in, const py::array& candidates_in,
-                     const py::object& grad_in, int threads) {
+                     const py::object& grad_in, int threads, const std::uint8_t* sides) {
   auto samples = py::reinterpret_borrow<py::array_t<Real>>(samples_in).template unchecked<2>();
   auto candidates = py::reinterpret_borrow<py::array_t<Index>>(candidates_in).template unchecked<2>();
   const std::int64_t m = samples.shape(0);
@@ -158,8 +158,9 @@ double voroloss_impl(const py::array& samples_in, const py::array& generators_in
       }
       // The candidate j whose bisector with i is nearest: d^2 = (|x-q_j|^2 - |x-q_i|^2)^2 / (4 |q_j-q_i|^2),
       // ranked without the 4 and compared as cross products (no division); copies of q_i (i itself
-      // included) have no bisector.
+      // included) have no bisector, nor, with sides, a candidate on i's side.
       const double* q_i = &sites[3 * index[col_i]];
+      const std::uint8_t side_i = sides == nullptr ? 0 : sides[index[col_i]];
       std::int64_t col_j = -1;
       double best_gap2 = 1.0, best_edge = 0.0;  // the ratio +inf
       for (std::int64_t r = 0; r < c; ++r) {
@@ -168,12 +169,13 @@ double voroloss_impl(const py::array& samples_in, const py::array& generators_in
         const double edge = ex * ex + ey * ey + ez * ez;
         const double gap = squared[r] - nearest;
         const double gap2 = gap * gap;
-        const bool better = (edge != 0.0) & (gap2 * best_edge < best_gap2 * edge);
+        const bool across = sides == nullptr || sides[index[r]] != side_i;
+        const bool better = (edge != 0.0) & across & (gap2 * best_edge < best_gap2 * edge);
         best_gap2 = better ? gap2 : best_gap2;
         best_edge = better ? edge : best_edge;
         col_j = better ? r : col_j;
       }
-      if (col_j < 0) continue;  // every candidate is a copy of q_i: distance 0, no gradient
+      if (col_j < 0) continue;  // every candidate is a copy of q_i (or on its side): no term, no gradient
       const double* q_j = &sites[3 * index[col_j]];
       const double e[3] = {q_j[0] - q_i[0], q_j[1] - q_i[1], q_j[2] - q_i[2]};
       const double length = std::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
@@ -225,7 +227,7 @@ double voroloss_impl(const py::array& samples_in, const py::array& generators_in
 }
 
 double voroloss(const py::object& samples_in, const py::object& generators_in, const py::object& candidates_in,
-                const py::object& grad_in, int threads) {
+                const py::object& grad_in, int threads, const py::object& sides_in) {
   py::array samples = numpy_array(samples_in, "samples");
   py::array generators = numpy_array(generators_in, "generators");
   py::array candidates = numpy_array(candidates_in, "candidates");
@@ -242,6 +244,16 @@ double voroloss(const py::object& samples_in, const py::object& generators_in, c
   }
   if (threads < 1) throw py::value_error("threads must be >= 1, got " + std::to_string(threads));
   check_real_pair(samples, generators);
+  py::array_t<std::uint8_t, py::array::c_style | py::array::forcecast> sides_array;
+  const std::uint8_t* sides = nullptr;
+  if (!sides_in.is_none()) {
+    sides_array = py::array_t<std::uint8_t, py::array::c_style | py::array::forcecast>::ensure(sides_in);
+    if (!sides_array || sides_array.ndim() != 1 || sides_array.shape(0) != generators.shape(0)) {
+      throw py::value_error("sides must be an (n,) array of 0/1 labels, one per generator (n = " +
+                            std::to_string(generators.shape(0)) + ")");
+    }
+    sides = sides_array.data();
+  }
   const bool f32 = py::isinstance<py::array_t<float>>(samples);
   const bool i32 = py::isinstance<py::array_t<std::int32_t>>(candidates);
   const bool i64 = py::isinstance<py::array_t<std::int64_t>>(candidates);
@@ -249,11 +261,11 @@ double voroloss(const py::object& samples_in, const py::object& generators_in, c
     throw py::type_error("candidates must be an int32 or int64 array of indices, got dtype " + dtype_name(candidates));
   }
   if (f32) {
-    return i32 ? voroloss_impl<float, std::int32_t>(samples, generators, candidates, grad_in, threads)
-               : voroloss_impl<float, std::int64_t>(samples, generators, candidates, grad_in, threads);
+    return i32 ? voroloss_impl<float, std::int32_t>(samples, generators, candidates, grad_in, threads, sides)
+               : voroloss_impl<float, std::int64_t>(samples, generators, candidates, grad_in, threads, sides);
   }
-  return i32 ? voroloss_impl<double, std::int32_t>(samples, generators, candidates, grad_in, threads)
-             : voroloss_impl<double, std::int64_t>(samples, generators, candidates, grad_in, threads);
+  return i32 ? voroloss_impl<double, std::int32_t>(samples, generators, candidates, grad_in, threads, sides)
+             : voroloss_impl<double, std::int64_t>(samples, generators, candidates, grad_in, threads, sides);
 }
 
 // Generators bucketed in a uniform grid of cubic cells (CSR: cell -> generator indices).
@@ -538,7 +550,7 @@ PYBIND11_MODULE(_fitkernel, module) {
   register_filter(module);
   register_imls(module);
   module.def("voroloss", &voroloss, py::arg("samples"), py::arg("generators"), py::arg("candidates"),
-             py::arg("grad") = py::none(), py::arg("threads") = 1,
+             py::arg("grad") = py::none(), py::arg("threads") = 1, py::arg("sides") = py::none(),
              R"doc(VoroLoss of samples over their candidate generators, and optionally its gradient.
 
 For each sample ``x`` the nearest candidate ``q_i`` and the candidate ``q_j`` whose bisector plane
@@ -557,6 +569,9 @@ grad : (n, 3) writeable array of the generators' dtype, optional
     within about 1e-6 of each other in the fit frame).
 threads : int
     Threads to use, >= 1.
+sides : (n,) bool or uint8 array, optional
+    Each generator's label: ``q_j`` is then sought among the candidates on the other side of ``q_i``
+    only (the loss of the surface between inside and outside cells); a sample with none adds nothing.
 
 Returns
 -------
@@ -566,7 +581,8 @@ float
 Raises
 ------
 ValueError
-    Bad shapes, NaN or inf, candidate indices outside [0, n), threads < 1, read-only grad.
+    Bad shapes, NaN or inf, candidate indices outside [0, n), threads < 1, read-only grad, sides
+    not one label per generator.
 TypeError
     Not arrays, or wrong dtypes.
 )doc");

@@ -90,7 +90,7 @@ class KernelLoop(FitLoop):
     def _gradient(self, offset: int) -> float:
         window = slice(offset, offset + self.batch)
         return _fitkernel.voroloss(self.samples[window], self.positions, self.candidates[window], self.grad,
-                                   threads=self.threads)
+                                   threads=self.threads, sides=self.sides)
 
     def _descend(self, adam: Adam, lr: float) -> None:
         if self.fixed is not None:
@@ -105,7 +105,7 @@ class KernelLoop(FitLoop):
     def loss(self) -> float:
         """VoroLoss over all samples with the current candidates."""
         return _fitkernel.voroloss(self.samples[: self.n_samples], self.positions, self.candidates[: self.n_samples],
-                                   threads=self.threads)
+                                   threads=self.threads, sides=self.sides)
 
     def generators(self) -> np.ndarray:
         return self.positions.astype(np.float64)

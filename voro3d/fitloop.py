@@ -62,10 +62,13 @@ class FitLoop(ABC):
     Attributes a backend sets: ``n_samples`` (samples, without the repeated window), ``batch``
     (window length) and ``searches`` (kNN searches so far, the first included). ``fixed``, None or
     an (n,) bool mask (numpy, or a tensor on the loop's device): generators whose gradient is
-    zeroed, so that Adam never moves them (a tile's frozen neighbours).
+    zeroed, so that Adam never moves them (a tile's frozen neighbours). ``sides``, None or an (n,) bool
+    array (numpy, or a tensor on the loop's device): each generator's label, where the loss is that of
+    the faces between differently labelled cells only (the kernel's ``sides``).
     """
 
     fixed = None
+    sides = None
 
     def run(self, steps: int, *, lr: float, milestones, gamma: float, seed: int, refresh_distance: float,
             progress: bool = False) -> np.ndarray:
@@ -83,6 +86,10 @@ class FitLoop(ABC):
             if self._moved() > refresh_distance**2 and step + 1 < steps:
                 self._search()
         return losses
+
+    def search(self) -> None:
+        """The kNN candidates searched again, at the generators as they are."""
+        self._search()
 
     @abstractmethod
     def _optimizer(self) -> Adam:

@@ -193,7 +193,8 @@ def voroloss(samples, generators, *, k: int | None = None, candidates=None) -> t
     return bisector_distance(samples_t, generators_t, nearest, other).square().mean()
 
 
-def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidates_t: torch.Tensor):
+def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidates_t: torch.Tensor,
+                   sides_t: torch.Tensor | None = None):
     """For each sample, its nearest candidate ``i`` and the candidate ``j`` whose bisector is closest.
 
     No gradient and no validation: the search step of :func:`voroloss`, shared with the fit loop.
@@ -206,11 +207,15 @@ def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidat
     generators_t : (3, n) float torch.Tensor, same dtype and device
     candidates_t : (c, m) int32 or int64 torch.Tensor
         Generator indices, ``c >= 2``.
+    sides_t : (n,) bool torch.Tensor, optional
+        Each generator's label: ``j`` is then sought among the candidates labelled unlike ``i``
+        only, as the compiled kernel's ``sides``.
 
     Returns
     -------
     nearest, other : (m,) int64 torch.Tensor
-        Generator indices; ``other == nearest`` where every other candidate is a copy of ``q_i``.
+        Generator indices; ``other == nearest`` where every other candidate is a copy of ``q_i``
+        (or, with ``sides_t``, on its side).
     """
     m = candidates_t.shape[1]
     # int64 out: index_add_ (the backward) takes a slow path with int32 indices.
@@ -220,7 +225,8 @@ def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidat
         # Blocks of samples keep the (c, block) temporaries in cache: twice as fast at 5e5 samples.
         for start in range(0, m, PAIR_BLOCK):
             block = slice(start, start + PAIR_BLOCK)
-            _block_pairs(samples_t[:, block], generators_t, candidates_t[:, block], nearest[block], other[block])
+            _block_pairs(samples_t[:, block], generators_t, candidates_t[:, block], nearest[block], other[block],
+                         sides_t)
     return nearest, other
 
 
@@ -228,7 +234,7 @@ def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidat
 PAIR_BLOCK = 32768
 
 
-def _block_pairs(samples_t, generators_t, candidates_t, nearest, other):
+def _block_pairs(samples_t, generators_t, candidates_t, nearest, other, sides_t=None):
     c, m = candidates_t.shape
     flat = candidates_t.reshape(-1)
     offset = [generators_t[d].index_select(0, flat).view(c, m).sub_(samples_t[d]) for d in range(3)]
@@ -242,6 +248,9 @@ def _block_pairs(samples_t, generators_t, candidates_t, nearest, other):
     # like the distance itself (the numerator is >= 0 since i is the nearest) and needs no sqrt;
     # j = i and copies of q_i give 0 / 0 and drop out as inf.
     distance = squared.sub_(squared.gather(0, col_i)).square_().div_(edge).nan_to_num_(nan=float("inf"))
+    if sides_t is not None:
+        side = sides_t.index_select(0, candidates_t.reshape(-1)).view(c, m)
+        distance.masked_fill_(side == side.gather(0, col_i), float("inf"))  # on i's side: no face to fit
     col_j, finite = _argmin_rows_(distance)
     col_j = torch.where(finite, col_j, col_i[0])[None]
     nearest.copy_(candidates_t.gather(0, col_i)[0])

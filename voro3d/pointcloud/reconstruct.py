@@ -32,7 +32,7 @@ from .debris import drop_stray_cells
 from .hull import reach_past_hull
 from .targets import build_target, check_coverage
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
-from .tuning import (CLOUD_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE,
+from .tuning import (CLOUD_STEPS, CLOUD_BOUNDARY_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE,
                      MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS,
                      MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
@@ -429,7 +429,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
         generators = None if band is None else band.generators()
         if subset is None:
             shape, _ = fit_samples(samples, target.inside, grid, frame=frame, threads=threads, progress=progress,
-                                   generators=generators, **fit_options)
+                                   generators=generators, boundary_steps=CLOUD_BOUNDARY_STEPS, **fit_options)
         else:
             shape, n_tiles = fit_in_tiles(samples, generators, target.inside, grid, levels=levels, frame=frame,
                                           engine=engine, workers=workers, threads=threads, progress=progress,
