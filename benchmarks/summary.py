@@ -119,7 +119,11 @@ rerun 2026-12-06 with open clouds held by their hull (`SHELL_DEPTH`): hippo2 5.3
 / 0.993; poste_france, all hull, took 39 s (6 s before; 29 s under load once the hull's height was bounded).
 Rerun 2026-12-06 evening with the IMLS band read by a bounded search and the height past the hull read
 once per node: hippo2 5.44e-4, point_set_3 1.72e-4, poste_france's kept points 9.99e-6 (the proxy mesh
-moved onto the IMLS zero set within the band only), the same Poisson figures; poste_france 7.6 s.""",
+moved onto the IMLS zero set within the band only), the same Poisson figures; poste_france 7.6 s.
+Rerun 2026-12-06 night with the fit's steps on the faces between inside and outside cells
+(`CLOUD_BOUNDARY_STEPS`): poste_france's kept points 9.99e-6 -> 2.28e-6, its slab without the bumps
+on both faces (the close-up), hippo2 5.45e-4, point_set_3 1.73e-4, radar 8.70e-5 (9.05e-5), normal
+agreement 0.973 / 0.993.""",
     "adaptive": """\
 `benchmarks/bench_adaptive.py`: the adaptive band `grid="auto"` fits on a dense cloud (octree from
 128³ up to 32³ voxels, split where the target bends) against uniform bands of 48-128³, on 10⁶
@@ -210,7 +214,10 @@ Rerun 2026-12-06 evening on the code as it stands (quiet machine, 8.3 s a cloud)
 0.9854, F1 0.9387, all closed and in one piece; per cloud within 2% but organic_camel_b, 0.397 ->
 0.641 (NC 0.982 -> 0.980), from the orientation's patches joined into parts (c616212, 2026-12-05:
 its wrong-signed normals 0.21% -> 0.18%, the Poisson target changed near its thin parts), and
-abc_00000001 2.36 -> 2.26.""",
+abc_00000001 2.36 -> 2.26. Rerun 2026-12-06 night with the fit's steps on the faces between inside
+and outside cells (`CLOUD_BOUNDARY_STEPS`; quiet machine, 8.7 s a cloud): CD 0.6456, NC 0.9864, F1
+0.9392, all closed and in one piece; organic_camel_b back to 0.394 (from 0.641), every other cloud
+within 3%.""",
     "pointcloud_range": """\
 `bench_pointcloud.py`'s virtual range scanner (`range_scan`: Open3D pinhole rays from 1, 3 or 6
 viewpoints, grazing hits dropped, depth noise along the ray) on 12 dev meshes, both methods in one
@@ -242,8 +249,11 @@ measurement; 1-view rows and the open 3-view cloud rerun with all three methods,
 lobes; abc_00000005 from 3 views 64.9 -> 19.5; 2.09x. Every row rerun with all three methods in one
 run after the IMLS band was read with a bounded search and the proxy mesh projected within it
 (`TargetSurface._in_band`; 2026-12-06 evening): CD 138.6 / 39.2 / 1.29, NC 0.815 / 0.917 / 0.972,
-F1 0.408 / 0.695 / 0.938 from 1 / 3 / 6 views; **1.93x** Open3D's pipeline (134 s against 70 s),
-62% of ours the target surface.""",
+F1 0.408 / 0.695 / 0.938 from 1 / 3 / 6 views; 1.93x Open3D's pipeline (134 s against 70 s),
+62% of ours the target surface. Rerun (all three methods, one run, quiet machine) with the fit's 40
+steps on the faces between inside and outside cells (`CLOUD_BOUNDARY_STEPS`, 2026-12-06 night): CD
+138.7 / 39.2 / 1.29, NC 0.814 / 0.916 / 0.973, F1 0.409 / 0.695 / 0.939; **2.13x** (143 s against
+67 s; our fit 25 -> 36 s summed).""",
     "pointcloud_dense_range": """\
 `bench_pointcloud.py --conditions "dense range scan 1 view"`: one view of a depth camera's frame
 (1600x1200 pixels, ~300k points, depth noise a quarter of the spacing) on the 12 meshes of
@@ -359,7 +369,9 @@ ours); at equal CD except abc_00000001, whose triangles are not consistently ori
 kept as they are (`snapping.CREASE_DEGREES`): 0.345 -> 0.358 against the unsplit meshes of the code
 before (7 of 11 split once, 4x their faces; timed beside the test suite). The table of 2026-12-04
 (0.371) predates the Poisson target solved in two halves from 60k points (9e20eda), which took
-abc_00000006 from 0.385 to 0.273 (bisected).""",
+abc_00000006 from 0.385 to 0.273 (bisected). Rerun 2026-12-06 night with the fit's 40 steps on the
+faces between inside and outside cells (`CLOUD_BOUNDARY_STEPS`): 0.358 -> 0.359 (the code before, rerun
+the same night: 0.358; per mesh -0.08 to +0.08), mean CD 1.054 -> 1.021.""",
     "given_normals": """\
 `benchmarks/bench_given_normals.py`: clouds with their own normals (from `estimate_normals()`,
 negated, true) against the same clouds without; given normals are checked and re-oriented where
