@@ -133,7 +133,7 @@ def test_sides_keep_the_bisector_between_differently_labelled_cells(seed):
     samples_t = torch.tensor(samples.T.copy())
     generators_t = torch.tensor(generators.T.copy(), requires_grad=True)
     nearest, other = bisector_pairs(samples_t, generators_t.detach(), torch.tensor(candidates.T.copy()),
-                                    torch.tensor(sides))
+                                    sides_t=torch.tensor(sides))
     expected = bisector_distance(samples_t, generators_t, nearest, other).square().mean()
     expected.backward()
     assert loss == pytest.approx(expected.item(), rel=1e-12)

@@ -131,8 +131,9 @@ def test_one_delaunay_per_mesh_reconstruct(count_delaunay):
     assert len(count_delaunay) == 1
 
 
-def test_one_delaunay_per_cloud_reconstruct(count_delaunay):
-    """Labels, the stray-cell pass and the extraction share the fit's triangulation."""
+def test_two_delaunays_per_cloud_reconstruct(count_delaunay):
+    """One for the labels the fit's boundary steps start from (CLOUD_BOUNDARY_STEPS), one for the
+    labels after them, which the stray-cell pass and the extraction share."""
     points, _ = voro3d.sample_surface(example_mesh(), 3000, seed=0)
     voro3d.reconstruct(points, 16, steps=5)
-    assert len(count_delaunay) == 1
+    assert len(count_delaunay) == 2

@@ -70,7 +70,8 @@ class TorchLoop(FitLoop):
         for start in range(0, self.batch, PAIR_BLOCK):
             window = slice(offset + start, offset + min(start + PAIR_BLOCK, self.batch))
             samples_t = self.samples_t[:, window].contiguous()
-            nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window], self.sides)
+            nearest, other = bisector_pairs(samples_t, generators_t.detach(), self.candidates_t[:, window],
+                                            sides_t=self.sides)
             block_loss = bisector_distance(samples_t, generators_t, nearest, other).square().sum() / self.batch
             block_loss.backward()
             loss += block_loss.detach()
@@ -101,7 +102,8 @@ class TorchLoop(FitLoop):
         with torch.no_grad():
             samples_t = self.samples_t[:, : self.n_samples]
             sites = self.generators_t.detach()
-            nearest, other = bisector_pairs(samples_t, sites, self.candidates_t[:, : self.n_samples], self.sides)
+            nearest, other = bisector_pairs(samples_t, sites, self.candidates_t[:, : self.n_samples],
+                                            sides_t=self.sides)
             return float(bisector_distance(samples_t, sites, nearest, other).square().mean())
 
     def generators(self) -> np.ndarray:

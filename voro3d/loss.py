@@ -193,7 +193,7 @@ def voroloss(samples, generators, *, k: int | None = None, candidates=None) -> t
     return bisector_distance(samples_t, generators_t, nearest, other).square().mean()
 
 
-def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidates_t: torch.Tensor,
+def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidates_t: torch.Tensor, *,
                    sides_t: torch.Tensor | None = None):
     """For each sample, its nearest candidate ``i`` and the candidate ``j`` whose bisector is closest.
 
@@ -226,7 +226,7 @@ def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidat
         for start in range(0, m, PAIR_BLOCK):
             block = slice(start, start + PAIR_BLOCK)
             _block_pairs(samples_t[:, block], generators_t, candidates_t[:, block], nearest[block], other[block],
-                         sides_t)
+                         sides_t=sides_t)
     return nearest, other
 
 
@@ -234,7 +234,7 @@ def bisector_pairs(samples_t: torch.Tensor, generators_t: torch.Tensor, candidat
 PAIR_BLOCK = 32768
 
 
-def _block_pairs(samples_t, generators_t, candidates_t, nearest, other, sides_t=None):
+def _block_pairs(samples_t, generators_t, candidates_t, nearest, other, *, sides_t=None):
     c, m = candidates_t.shape
     flat = candidates_t.reshape(-1)
     offset = [generators_t[d].index_select(0, flat).view(c, m).sub_(samples_t[d]) for d in range(3)]

@@ -79,12 +79,7 @@ AUTO_GRID_RANGE = (32, 128)
 COARSEST_GRID = 32
 BAND_TOLERANCE = 0.05
 # The target surface's resolution follows the grid up to this one (Poisson depth 8), finer only
-# for dense points (TARGET_CELL_SPACINGS). Its Poisson depth is that of four nodes a voxel (depth 8
-# at grid 64): depth 7 instead, the 12 benchmark meshes at grid 64, no normals (2026-12-06, one run
-# after the other, the first beside other work), mean CD / NC / F1: clean 20k 0.635 / 0.973 / 0.951 ->
-# 0.680 / 0.970 / 0.945, 0.5% noise 1.361 / 0.951 / 0.814 -> 1.520 / 0.944 / 0.787, 6-view range scans
-# 1.286 / 0.972 / 0.938 -> 1.394 / 0.969 / 0.932 (cow 0.65 -> 0.79, thingi32_75655 0.92 -> 1.27),
-# 3-view ones 39.2 -> 39.8 (most refuse Poisson); the whole call 0.71x the time (223 -> 158 s).
+# for dense points (TARGET_CELL_SPACINGS); its Poisson depth: pointcloud.poisson.poisson_depth.
 MAX_TARGET_GRID = 64
 # The Poisson target goes finer than MAX_TARGET_GRID asks while its octree cells stay this many
 # median spacings wide (pointcloud.poisson.poisson_depth): dense clouds hold the detail. 1M oriented
@@ -154,56 +149,51 @@ HOLE_VOXELS = 1.0
 # ones, cavities a voxel under its top: 3 pieces, 1 with the rule (bubbles of at most 8 cells only
 # before it); no other of the 144 benchmark outputs had more pieces than its cloud has islands.
 STRAY_CELL_SHARE = 0.02
-# Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points
-# enclose a volume (0.5 closed, about 0 for a one-sided scan): their target is screened Poisson.
-# Ablation, range scans of 12 dev meshes (bench_pointcloud, grid 64): every cloud taken as closed
-# (this level at -1) gave CD 6,500-10,700 on 10 of the 12 one-view scans and 7 of the 12 three-view
-# ones (their Poisson surface ran off, and the IMLS target then lacked the one-sided scans'
-# smoothing pass) against 35-3,400 and 4.5-1,270 with it.
-# The other way, every cloud's target IMLS (no Poisson), 2026-12-06, same session, 12 benchmark
-# meshes unless said: clean 5k CD 2.43 -> 4.20, NC 0.947 -> 0.938; clean 20k 0.64 -> 0.95, 0.973 ->
-# 0.965; a third missing 361 -> 497, 0.899 -> 0.858; 6 views 1.29 -> 1.51, 0.972 -> 0.957; but 3 views
-# 45.8 -> 23.8 (NC 0.877 -> 0.870, F1 0.660 -> 0.666; abc_00000008 142 -> 12.6, homer 105 -> 13.8,
-# spot 35 -> 10.4) and on the 16 meshes of pointcloud_range_more 65.7 -> 51.6 (NC 0.904 -> 0.889;
-# arm 62 -> 6.9, fertility 74 -> 13): a 3-view scan's kept Poisson surface balloons under what no
-# view saw. Neither the level nor MAX_POISSON_ESCAPE tells those from a third missing, where Poisson
-# wins: levels 0.32-0.47 against 0.38-0.48, escapes 0.028-0.079 against 0.0005-0.061.
+# Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points enclose a volume (0.5
+# closed, about 0 for a one-sided scan): their target is screened Poisson. Ablation, range scans of 12 dev meshes
+# (bench_pointcloud, grid 64): every cloud taken as closed (this level at -1) gave CD 6,500-10,700 on 10 of the 12
+# one-view scans and 7 of the 12 three-view ones (their Poisson surface ran off, and the IMLS target then lacked the
+# one-sided scans' smoothing pass) against 35-3,400 and 4.5-1,270 with it. The other way, every cloud's target IMLS
+# (no Poisson), 2026-12-06, same session, 12 benchmark meshes unless said: clean 5k CD 2.43 -> 4.20, NC 0.947 ->
+# 0.938; clean 20k 0.64 -> 0.95, 0.973 -> 0.965; a third missing 361 -> 497, 0.899 -> 0.858; 6 views 1.29 -> 1.51,
+# 0.972 -> 0.957; but 3 views 45.8 -> 23.8 (NC 0.877 -> 0.870, F1 0.660 -> 0.666; abc_00000008 142 -> 12.6, homer 105
+# -> 13.8, spot 35 -> 10.4) and on the 16 meshes of pointcloud_range_more 65.7 -> 51.6 (NC 0.904 -> 0.889; arm 62 ->
+# 6.9, fertility 74 -> 13): a 3-view scan's kept Poisson surface balloons under what no view saw. Neither the level
+# nor MAX_POISSON_ESCAPE tells those from a third missing, where Poisson wins: levels 0.32-0.47 against 0.38-0.48,
+# escapes 0.028-0.079 against 0.0005-0.061.
 CLOSED_LEVEL = 0.25
-# Not settled: which target for clouds that read closed but were seen in part. Each target forced
-# (plan target), 12 dev meshes, grid 64, at 17c2436, mean CD / NC auto -- poisson -- imls: 3-view range
-# scans 71.3 / 0.869 -- 553.7 / 0.816 -- 48.8 / 0.863 (Poisson's CD lower on 0 of 12; the auto
-# rule sends 5 to it, homer 105 against IMLS's 11.4), a third missing 355.4 / 0.899 -- same -- 467.2
-# / 0.857 (Poisson lower on 11), 6 views 1.2 / 0.972 -- same -- 2.0 / 0.956 (Poisson lower on 9). The
-# winding level does not tell the first two apart: 0.23-0.41 on 3-view scans, 0.39-0.48 with a third
-# missing (6 views 0.50). Nor do (same clouds, at e9c897c) the share of either target's area over
-# 4-16 spacings from the points, points whose outward normal ray it blocks, or the thickness of
-# Poisson's unsupported parts (20-57 octree cells on the 3-view clouds it is sent: fills, not flaps);
-# with the true normals Poisson still fails the 3-view scans (homer CD 91.7, IMLS 7.8).
-# The IMLS target of a closed cloud closes its holes and unseen parts at a winding number of at least
-# this (surface.target_surface's hole_level; near the points the IMLS field decides). 3-view range
-# scans of the 12 benchmark meshes (7 take IMLS), grid 64, DENSE_SPACINGS 1/4, mean CD / NC / F1 with
-# the cloud's own level (0.23-0.42) / 0.42 / 0.46 / 0.5: 72.4 / 0.876 / 0.661 -- 47.5 / 0.877 / 0.661
-# -- 47.0 / 0.872 / 0.649 -- 49.1 / 0.868 / 0.637 (fandisk 176 -> 45, thingi32_75655 138 -> 38,
-# elephant 73 -> 16: caps that ballooned; at 0.5 limbs seen from one side are cut: armadillo 4.2 ->
-# 16.6). On 8 dev meshes outside the benchmark (abc_00000003, screwdriver, camel_b, fertility,
-# cheburashka, thingi32_44234 / 96481, decimated-max; 3 take IMLS), own level against 0.42: 69.2 /
-# 0.899 / 0.677 -> 33.8 / 0.903 / 0.686 (thingi32_96481 269 -> 41). Rerun: bench_pointcloud.py
-# --conditions "range scan 3 views" --no-poisson --hole-level 0 (--shapes ... for the other meshes).
+# Not settled: which target for clouds that read closed but were seen in part. Each target forced (plan target), 12
+# dev meshes, grid 64, at 17c2436, mean CD / NC auto -- poisson -- imls: 3-view range scans 71.3 / 0.869 -- 553.7 /
+# 0.816 -- 48.8 / 0.863 (Poisson's CD lower on 0 of 12; the auto rule sends 5 to it, homer 105 against IMLS's 11.4), a
+# third missing 355.4 / 0.899 -- same -- 467.2 / 0.857 (Poisson lower on 11), 6 views 1.2 / 0.972 -- same -- 2.0 /
+# 0.956 (Poisson lower on 9). The winding level does not tell the first two apart: 0.23-0.41 on 3-view scans,
+# 0.39-0.48 with a third missing (6 views 0.50). Nor do (same clouds, at e9c897c) the share of either target's area
+# over 4-16 spacings from the points, points whose outward normal ray it blocks, or the thickness of Poisson's
+# unsupported parts (20-57 octree cells on the 3-view clouds it is sent: fills, not flaps); with the true normals
+# Poisson still fails the 3-view scans (homer CD 91.7, IMLS 7.8). The IMLS target of a closed cloud closes its holes
+# and unseen parts at a winding number of at least this (surface.target_surface's hole_level; near the points the IMLS
+# field decides). 3-view range scans of the 12 benchmark meshes (7 take IMLS), grid 64, DENSE_SPACINGS 1/4, mean CD /
+# NC / F1 with the cloud's own level (0.23-0.42) / 0.42 / 0.46 / 0.5: 72.4 / 0.876 / 0.661 -- 47.5 / 0.877 / 0.661 --
+# 47.0 / 0.872 / 0.649 -- 49.1 / 0.868 / 0.637 (fandisk 176 -> 45, thingi32_75655 138 -> 38, elephant 73 -> 16: caps
+# that ballooned; at 0.5 limbs seen from one side are cut: armadillo 4.2 -> 16.6). On 8 dev meshes outside the
+# benchmark (abc_00000003, screwdriver, camel_b, fertility, cheburashka, thingi32_44234 / 96481, decimated-max; 3 take
+# IMLS), own level against 0.42: 69.2 / 0.899 / 0.677 -> 33.8 / 0.903 / 0.686 (thingi32_96481 269 -> 41). Rerun:
+# bench_pointcloud.py --conditions "range scan 3 views" --no-poisson --hole-level 0 (--shapes ... for the other
+# meshes).
 HOLE_LEVEL = 0.42
-# The IMLS target of an open cloud (winding level under CLOSED_LEVEL) left uncut by the hull (plan hull
-# "off") reaches no further than this from the points, but where they enclose it (target_surface's depth):
-# behind a one-sided scan the winding number reads inside out to the box, a block that only a round object
-# resembles. Range scans of 12 dev meshes, grid 64, no cut, mean CD with no limit / 0.0625 / 0.125 / 0.25 /
-# 0.375: one view 1337 / 455 / 361 / 370 / 562 (CAD parts 1073-5536 -> 96-487 at 0.125; bunny 385 -> 874),
-# NC 0.762 / 0.750 / 0.732 / 0.740 / 0.759; three views 259 -> 63.6 (two balloons gone). Cut to the hull
-# (auto for open clouds), the hull bounds it and no limit applies: all 38 dev meshes from 1 view (2026-12-06,
-# no normals, grid 64), limit 0.125 / 0.25 / 0.5 / 1 / none: CD 390.8 / 303.6 / 267.2 / 252.5 / 252.5, NC
-# 0.776 / 0.800 / 0.811 / 0.823 / 0.823, F1 0.403 / 0.402 / 0.405 / 0.412 / 0.412 (none against 0.125: lower
-# CD on 35 of 38; the lid abc_00000007 131 -> 216, abc_00000008 63 -> 181), 0.89x the time (poste_france 6 -> 39 s).
-# Closed clouds keep no limit: the 20 clouds of the 38 dev meshes whose Poisson target is refused
-# (MAX_POISSON_ESCAPE's ablation below), limited at this depth too (2026-12-05): mean CD 65.9 ->
-# 89.7, NC 0.881 -> 0.857, F1 0.634 -> 0.572, lower CD on 4 (the lid from 3 views 357 -> 83),
-# and up to 9x higher on the rest (cow 7.4 -> 70, bunny 11 -> 92): their holes are closed, not cut.
+# The IMLS target of an open cloud (winding level under CLOSED_LEVEL) left uncut by the hull (plan hull "off") reaches
+# no further than this from the points, but where they enclose it (target_surface's depth): behind a one-sided scan
+# the winding number reads inside out to the box, a block that only a round object resembles. Range scans of 12 dev
+# meshes, grid 64, no cut, mean CD with no limit / 0.0625 / 0.125 / 0.25 / 0.375: one view 1337 / 455 / 361 / 370 /
+# 562 (CAD parts 1073-5536 -> 96-487 at 0.125; bunny 385 -> 874), NC 0.762 / 0.750 / 0.732 / 0.740 / 0.759; three
+# views 259 -> 63.6 (two balloons gone). Cut to the hull (auto for open clouds), the hull bounds it and no limit
+# applies: all 38 dev meshes from 1 view (2026-12-06, no normals, grid 64), limit 0.125 / 0.25 / 0.5 / 1 / none: CD
+# 390.8 / 303.6 / 267.2 / 252.5 / 252.5, NC 0.776 / 0.800 / 0.811 / 0.823 / 0.823, F1 0.403 / 0.402 / 0.405 / 0.412 /
+# 0.412 (none against 0.125: lower CD on 35 of 38; the lid abc_00000007 131 -> 216, abc_00000008 63 -> 181), 0.89x the
+# time (poste_france 6 -> 39 s). Closed clouds keep no limit: the 20 clouds of the 38 dev meshes whose Poisson target
+# is refused (MAX_POISSON_ESCAPE's ablation below), limited at this depth too (2026-12-05): mean CD 65.9 -> 89.7, NC
+# 0.881 -> 0.857, F1 0.634 -> 0.572, lower CD on 4 (the lid from 3 views 357 -> 83), and up to 9x higher on the rest
+# (cow 7.4 -> 70, bunny 11 -> 92): their holes are closed, not cut.
 SHELL_DEPTH = 0.125
 # Each point's depth (surface.shell_depths: the radius of the seen surface's mean curvature) is at
 # most SHELL_DEPTH and at least this many nodes of the field's grid (two VoroMesh voxels at
@@ -246,29 +236,28 @@ SHELL_ROUNDING_NODES = 3.0
 # 0.334; three and six views have no gap to bridge (every figure the same). Clouds that read closed
 # are never bridged: two objects side by side stay two. Rerun: bench_pointcloud.py --bridge-gap 0.
 MAX_BRIDGE_GAP = 0.25
-# A Poisson surface that runs further than this share of the diagonal out of the points' box is
-# refused (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`). Ablation on all 38 dev meshes,
-# grid 64 (2026-12-05): it fires on 17 of the 3-view range scans, 1 of the 6-view ones and 2 with a
-# third missing. Off (Poisson kept), mean CD over the 38 from 3 views 55.5 -> 537.8, NC 0.889 ->
-# 0.868, F1 0.644 -> 0.593 (fandisk 44 -> 4406, bunny 11 -> 2045, cheburashka 16 -> 3753; the lid
-# abc_00000007 alone gains, 357 -> 5.0); 6 views 2.6 -> 2.7 (the lid's shell 2.27, Poisson 8.26); a
-# third missing 345.9 -> 338.9, NC 0.8865 -> 0.8915 (thingi32_75665 355 -> 82; bumpy-cube 105 ->
-# 112, NC 0.81 -> 0.93). Choosing instead the target nearer the points both ways (sheet_if_closer's
-# misfit, Poisson's surface cut to the fit cube) would keep IMLS on all 15 of the 3-view scans
-# measured, the lid included (45.8 spacings against 9.2: its flaps stay inside the cube). Rerun:
-# bench_pointcloud.py --no-poisson --poisson-escape none --conditions "range scan 3 views" ...
+# A Poisson surface that runs further than this share of the diagonal out of the points' box is refused
+# (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`). Ablation on all 38 dev meshes, grid 64 (2026-12-05): it
+# fires on 17 of the 3-view range scans, 1 of the 6-view ones and 2 with a third missing. Off (Poisson kept), mean CD
+# over the 38 from 3 views 55.5 -> 537.8, NC 0.889 -> 0.868, F1 0.644 -> 0.593 (fandisk 44 -> 4406, bunny 11 -> 2045,
+# cheburashka 16 -> 3753; the lid abc_00000007 alone gains, 357 -> 5.0); 6 views 2.6 -> 2.7 (the lid's shell 2.27,
+# Poisson 8.26); a third missing 345.9 -> 338.9, NC 0.8865 -> 0.8915 (thingi32_75665 355 -> 82; bumpy-cube 105 -> 112,
+# NC 0.81 -> 0.93). Choosing instead the target nearer the points both ways (sheet_if_closer's misfit, Poisson's
+# surface cut to the fit cube) would keep IMLS on all 15 of the 3-view scans measured, the lid included (45.8 spacings
+# against 9.2: its flaps stay inside the cube). Rerun: bench_pointcloud.py --no-poisson --poisson-escape none
+# --conditions "range scan 3 views" ...
 MAX_POISSON_ESCAPE = 0.08
-# With plan hull "on", a target's solid more than this many nodes of its grid (a VoroMesh voxel at
-# FIELD_REFINEMENT 2) outside the points' convex hull is cut away (voro3d.pointcloud.hull); "auto" cuts an
-# open cloud's (level under CLOSED_LEVEL), whose solid it then holds (SHELL_DEPTH). Off -> on, 38 dev meshes,
-# no normals, grid 64 (plan_hull_open.md, 2026-12-06): 1 view CD 368.8 -> 252.5, NC 0.758 -> 0.823, F1 0.381 ->
-# 0.412 (lower CD on 34), 3-view scans that read open (3) 65.8 -> 21.4; on a table (scenes.md) 1 / 3 views CD
-# 122.7 / 74.1 -> 30.1 / 23.5 (the table as thin as its seen edges); the 2 third-missing clouds that read open
-# lose (388.5 -> 494.4, 381.9 -> 427.1); all closed, one piece. Closed 3-view scans gain too (54.0 -> 32.3, 27 of 35), a third
-# missing loses (28 meshes, plan_hull.md: 325 -> 451, NC -0.019, 1 of 28), and neither the level (0.14-0.46 against
-# 0.31-0.48), the share of the solid cut (0-0.27 both), the closure's mean reach past the hull (0.04-0.11
-# against 0.03-0.24) nor this margin (homer's 3-view scan 53 / 96 / 106 at 4 / 8 / 16 nodes, spot's third
-# missing 180 / 107 / 71, against 236 at 2 and 78 off) tells them apart.
+# With plan hull "on", a target's solid more than this many nodes of its grid (a VoroMesh voxel at FIELD_REFINEMENT 2)
+# outside the points' convex hull is cut away (voro3d.pointcloud.hull); "auto" cuts an open cloud's (level under
+# CLOSED_LEVEL), whose solid it then holds (SHELL_DEPTH). Off -> on, 38 dev meshes, no normals, grid 64
+# (plan_hull_open.md, 2026-12-06): 1 view CD 368.8 -> 252.5, NC 0.758 -> 0.823, F1 0.381 -> 0.412 (lower CD on 34),
+# 3-view scans that read open (3) 65.8 -> 21.4; on a table (scenes.md) 1 / 3 views CD 122.7 / 74.1 -> 30.1 / 23.5 (the
+# table as thin as its seen edges); the 2 third-missing clouds that read open lose (388.5 -> 494.4, 381.9 -> 427.1);
+# all closed, one piece. Closed 3-view scans gain too (54.0 -> 32.3, 27 of 35), a third missing loses (28 meshes,
+# plan_hull.md: 325 -> 451, NC -0.019, 1 of 28), and neither the level (0.14-0.46 against 0.31-0.48), the share of the
+# solid cut (0-0.27 both), the closure's mean reach past the hull (0.04-0.11 against 0.03-0.24) nor this margin
+# (homer's 3-view scan 53 / 96 / 106 at 4 / 8 / 16 nodes, spot's third missing 180 / 107 / 71, against 236 at 2 and 78
+# off) tells them apart.
 HULL_MARGIN_NODES = 2.0
 # Share of the points that must lie on the target surface (within two kernel widths).
 MIN_COVERAGE = 0.9
@@ -383,38 +372,29 @@ MIN_REVEALING = 0.005
 # their grown boxes overlap) and a 500k bunny with 2,000 or 300 points of spot 3 sides away (two);
 # 1.1-2.8 s instead of 3.4-10.6 s (2026-12-04, beside another benchmark).
 SEPARATE_POINTS = 200_000
-# Adam steps of a cloud's fit (a mesh's stays 400): its mesh is fitted to the target afterwards,
-# which settles what the last steps would. 4 dev meshes x clean 20k / 0.5% noise / a third missing
-# at grid 64, 200 against 400 steps: CD +0.04% on average, +0.78% at worst (bunny clean), NC at
-# worst -0.0007, F1 within 0.001; the fit 0.67x and the whole call 0.84x the time. Bunny and fandisk
-# at 100k clean points and 3-view range scans: CD -0.9% to +0.8%, NC at worst -0.0018. 120 against
-# 200 (2026-12-04): 6 dev meshes (bunny, fandisk, armadillo, abc_00000005, cow, thingi32_75655) x clean
-# 20k / 0.5% noise / a third missing / 3-view range scans at grid 64, mean CD +0.6% / -0.7% / -0.0% /
-# +0.0% (worst +1.6%, thingi32_75655 clean), NC -0.0002 to -0.0004 on average (worst -0.0012), F1
-# within 0.0001, the fit 0.72-0.80x; 6 dev meshes (armadillo, fandisk, abc_00000005 / 08, bunny,
-# screwdriver) at 10^5 true-normal points, grid "auto": CD -0.6% to +0.6%, NC at worst -0.0006, edge
-# F-score (bench_edges' measure) up on 5 of 6, mean 0.419 -> 0.454. At 80 steps NC fell by up to 0.0024.
-# What it costs: thin walls from dense oriented points converge less far. 5 CAD dev meshes at 2x10^5
-# true-normal points: the lid abc_00000007 NC 0.970 -> 0.964 and 12% more faces, the cup abc_00000009
-# NC 0.9943 -> 0.9916 and 13% more faces; abc_00000001, screwdriver and rocker-arm CD -2.6% to +0.3%,
-# NC at worst -0.0007 (bench_edges over its 11 meshes: edge F-score 0.355 -> 0.371).
+# Adam steps of a cloud's fit (a mesh's stays 400): its mesh is fitted to the target afterwards, which settles what
+# the last steps would. 4 dev meshes x clean 20k / 0.5% noise / a third missing at grid 64, 200 against 400 steps: CD
+# +0.04% on average, +0.78% at worst (bunny clean), NC at worst -0.0007, F1 within 0.001; the fit 0.67x and the whole
+# call 0.84x the time. Bunny and fandisk at 100k clean points and 3-view range scans: CD -0.9% to +0.8%, NC at worst
+# -0.0018. 120 against 200 (2026-12-04): 6 dev meshes (bunny, fandisk, armadillo, abc_00000005, cow, thingi32_75655) x
+# clean 20k / 0.5% noise / a third missing / 3-view range scans at grid 64, mean CD +0.6% / -0.7% / -0.0% / +0.0%
+# (worst +1.6%, thingi32_75655 clean), NC -0.0002 to -0.0004 on average (worst -0.0012), F1 within 0.0001, the fit
+# 0.72-0.80x; 6 dev meshes (armadillo, fandisk, abc_00000005 / 08, bunny, screwdriver) at 10^5 true-normal points,
+# grid "auto": CD -0.6% to +0.6%, NC at worst -0.0006, edge F-score (bench_edges' measure) up on 5 of 6, mean 0.419 ->
+# 0.454. At 80 steps NC fell by up to 0.0024. What it costs: thin walls from dense oriented points converge less far.
+# 5 CAD dev meshes at 2x10^5 true-normal points: the lid abc_00000007 NC 0.970 -> 0.964 and 12% more faces, the cup
+# abc_00000009 NC 0.9943 -> 0.9916 and 13% more faces; abc_00000001, screwdriver and rocker-arm CD -2.6% to +0.3%, NC
+# at worst -0.0007 (bench_edges over its 11 meshes: edge F-score 0.355 -> 0.371).
 CLOUD_STEPS = 120
-# Steps on the faces between inside and outside cells alone, after the cells are labelled
-# (voro3d.fitting.fit_samples' boundary_steps; not in the tiles of clouds over TILE_POINTS). The
-# main loss pulls any face onto the samples: in poste_france's slab, a cell or two thick, faces between
-# two inside cells held them while inside cells poked out (seed 0: 57 faces over half a voxel off the
-# target; 2.0% of the mesh area near the points tilted over 30 degrees off their plane fits, seeds 1
-# and 2 0.17%). With these steps 0.14% / 0.16% / 0.16% (40 more steps on all faces: the bumps stayed).
-# 12 benchmark meshes, grid 64, no normals (2026-12-06, one run after the other on a quiet machine),
-# mean CD / NC / F1 without -> with: 1 view 138.61 / 0.8146 / 0.4084 -> 138.69 / 0.8143 / 0.4088,
-# 3 views 39.17 / 0.9167 / 0.6949 -> 39.24 / 0.9164 / 0.6947, 6 views 1.286 / 0.9723 / 0.9382 -> 1.289
-# / 0.9730 / 0.9387, clean 5k 2.434 / 0.9473 / 0.8410 -> 2.429 / 0.9475 / 0.8417, clean 20k 0.635 /
-# 0.9730 / 0.9513 -> 0.632 / 0.9736 / 0.9517 (lower CD on 10 of 12), 0.5% noise 1.361 / 0.9510 /
-# 0.8144 -> 1.352 / 0.9514 / 0.8156 (per cloud CD 0.95-1.08x); 2-4% fewer faces; the fit 56.2 -> 76.5 s
-# summed (0.28 s a cloud; the whole call 273.6 -> 283.9 s). Edge F-score of the 11 CAD dev meshes from
-# 200k true-normal points (bench_edges, grid auto) 0.358 -> 0.359 (per mesh -0.08 to +0.08). With 100
-# main steps instead: CD / NC / F1 the same within 0.5%, the fit 67.5 s, but edge F-score 0.353.
-# Rerun: bench_pointcloud.py --no-poisson and bench_edges.py with the constant set.
+# Steps on the faces between inside and outside cells alone after the labels (fitting.fit_samples' boundary_steps; not
+# in the tiles over TILE_POINTS). In poste_france's slab, a cell or two thick, faces between inside cells held the
+# samples while inside cells poked out: the mesh area near the points tilted over 30 degrees off their plane fits,
+# seeds 0 / 1 / 2, 2.0% / 0.17% / 0.17% -> 0.14% / 0.16% / 0.16% (40 more ordinary steps: bumps). 12 benchmark meshes,
+# grid 64, no normals (2026-12-06, quiet), mean CD / NC without -> with: 1 / 3 / 6 views 138.61 / 39.17 / 1.286 ->
+# 138.69 / 39.24 / 1.289, NC 0.8146 / 0.9167 / 0.9723 -> 0.8143 / 0.9164 / 0.9730; clean 5k / 20k, 0.5% noise 2.434 /
+# 0.635 / 1.361 -> 2.429 / 0.632 / 1.352, NC +0.0002 to +0.0006; F1 within 0.0012; per cloud 0.95-1.08x; the fit 0.28
+# s a cloud longer. bench_edges 0.358 -> 0.359; with 100 main steps the same CD, 0.13 s less, edge F-score 0.353.
+# Rerun: bench_pointcloud.py --no-poisson, bench_edges.py, with the constant set.
 CLOUD_BOUNDARY_STEPS = 40
 # VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh
 # is fitted to the target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view
