@@ -313,7 +313,10 @@ open 3-view cloud rerun, all three methods): 1 view CD 437.6 -> 297.2 (alpha wra
 0.832, F1 0.411 -> 0.423; abc_00000001 from 3 views 28.3 -> 29.6; 1.99x. Every row rerun, all three
 methods in one run, with the IMLS band's bounded search (2026-12-06 evening): 1 / 3 / 6 views CD 297.3
 / 64.7 / 4.09 (alpha wrap 721.0 / 51.2 / 6.50; the lid from 3 views 387 -> 393), NC 0.833 / 0.926 /
-0.965; **1.95x** Open3D's pipeline (192 s against 99 s).""",
+0.965; 1.95x Open3D's pipeline (192 s against 99 s). Rerun, all three methods in one run on a quiet
+machine, with the fit's 40 steps on the faces between inside and outside cells (`CLOUD_BOUNDARY_STEPS`,
+2026-12-06 night): CD 297.2 / 62.3 / 4.09 (alpha wrap 721.0 / 51.2 / 6.50; the lid from 3 views
+392.8), NC 0.833 / 0.926 / 0.966, F1 0.424 / 0.659 / 0.847; **2.12x** (208 s against 98 s).""",
     "pointcloud_range_rest": """\
 The range conditions on the other 10 dev meshes (with `pointcloud_range` and `pointcloud_range_more`,
 all 38), all three methods in one run (2026-12-06; the mushrooms' rows rerun for the picture, with
@@ -331,7 +334,10 @@ apart. With `hull auto` cutting open clouds (1- and 3-view rows rerun, all three
 487 -> 516, NC 0.737 -> 0.765, F1 0.364 -> 0.384; 3 views 47.6 -> 45.7 (thingi32_76277 33 -> 14);
 2.00x. Then held by the hull, not a shell depth (1-view rows and the open 3-view cloud rerun, all three
 methods): 1 view CD 516 -> 317, NC 0.765 -> 0.820, F1 0.384 -> 0.398; thingi32_76277 from 3 views 14.0
--> 15.1; 1.99x.""",
+-> 15.1; 1.99x. Every row rerun, all three methods in one run on a quiet machine, with the fit's 40
+steps on the faces between inside and outside cells (`CLOUD_BOUNDARY_STEPS`, 2026-12-06 night): CD
+317.3 / 46.6 / 1.70 from 1 / 3 / 6 views (alpha wrap 852.0 / 75.9 / 2.60), NC 0.821 / 0.920 / 0.966,
+F1 0.398 / 0.666 / 0.891; **1.98x** Open3D's pipeline (136 s against 69 s).""",
     "scenes": """\
 `benchmarks/bench_scenes.py`: each of the 12 meshes of `pointcloud_range` on a plate (1.6x its footprint),
 scanned from 1 or 3 viewpoints 30 degrees above it, as a turntable or a handheld scanner sees an object
