@@ -286,9 +286,10 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
             # a converged fit (a sphere at grid 24: the labelled faces' loss 1.20e-6 -> 1.40e-6, at
             # the next one 1.15e-6).
             decays = bisect.bisect_right(schedule["milestones"], schedule["steps"] - 1) + 1
-            faces = dict(schedule, steps=boundary_steps, lr=schedule["lr"] * schedule["gamma"] ** decays, milestones=[])
+            on_faces = dict(schedule, steps=boundary_steps, lr=schedule["lr"] * schedule["gamma"] ** decays,
+                            milestones=[])
             faces = optimise_generators(samples, run.generators, grid, reach=reach, threads=threads,
-                                        sides=result.occupancy, loop=run.loop, **faces)
+                                        sides=result.occupancy, loop=run.loop, **on_faces)
             optimised += time.perf_counter() - labelled
             result = labelled_voromesh(faces.generators, inside, grid, frame=frame)
         generators = result.generators

@@ -249,7 +249,7 @@ def _block_pairs(samples_t, generators_t, candidates_t, nearest, other, *, sides
     # j = i and copies of q_i give 0 / 0 and drop out as inf.
     distance = squared.sub_(squared.gather(0, col_i)).square_().div_(edge).nan_to_num_(nan=float("inf"))
     if sides_t is not None:
-        side = sides_t.index_select(0, candidates_t.reshape(-1)).view(c, m)
+        side = sides_t.index_select(0, flat).view(c, m)
         distance.masked_fill_(side == side.gather(0, col_i), float("inf"))  # on i's side: no face to fit
     col_j, finite = _argmin_rows_(distance)
     col_j = torch.where(finite, col_j, col_i[0])[None]
