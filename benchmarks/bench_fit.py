@@ -13,7 +13,7 @@ of this metric. An open input (boundary edges, no inside) is fitted with ``allow
 its peak RSS is its own. Writes ``benchmarks/results/fit_<grids>.{md,json}`` and a PNG
 comparing the three on a few shapes.
 
-    python benchmarks/bench_fit.py [--grids 32 64] [--folder DIR] [--limit N] [--steps 400]
+    python benchmarks/bench_fit.py [--grids 32 64] [--folder DIR] [--limit N] [--steps 400] [--boundary-steps 0]
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def _score(mesh, source, check_intersections=True):
     return row
 
 
-def _one(path, grid, steps, picture_dir, queue):
+def _one(path, grid, steps, picture_dir, queue, boundary_steps=0):
     import torch
 
     from voro3d.baselines import dual_contouring, marching_cubes
@@ -59,7 +59,7 @@ def _one(path, grid, steps, picture_dir, queue):
         source = load_mesh(path)
         open_input = open_edge_count(*mesh_arrays(source)) > 0
         start = time.perf_counter()
-        shape, info = fit(source, grid, steps=steps, allow_open=open_input)
+        shape, info = fit(source, grid, steps=steps, allow_open=open_input, boundary_steps=boundary_steps)
         voromesh = shape.to_open3d(surface=source)
         seconds = {"voromesh": time.perf_counter() - start}
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -93,10 +93,10 @@ def _one(path, grid, steps, picture_dir, queue):
         queue.put(dict(shape=Path(path).name, grid=grid, status="failed", error=f"{type(error).__name__}: {error}"))
 
 
-def run_shape(path, grid, steps, picture_dir=None):
+def run_shape(path, grid, steps, picture_dir=None, boundary_steps=0):
     context = multiprocessing.get_context("spawn")
     queue = context.Queue()
-    process = context.Process(target=_one, args=(str(path), grid, steps, picture_dir, queue))
+    process = context.Process(target=_one, args=(str(path), grid, steps, picture_dir, queue, boundary_steps))
     process.start()
     row = queue.get()
     process.join()
@@ -204,6 +204,7 @@ def main():
     parser.add_argument("--folder", type=Path, default=DEV if DEV.is_dir() else None)
     parser.add_argument("--grids", type=int, nargs="+", default=[32, 64])
     parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--boundary-steps", type=int, default=0, help="fit(boundary_steps=)")
     parser.add_argument("--limit", type=int, default=None, help="first N meshes only")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -225,7 +226,7 @@ def main():
     rows = []
     for grid in args.grids:
         for path in paths:
-            row = run_shape(path, grid, args.steps, picture_dir)
+            row = run_shape(path, grid, args.steps, picture_dir, args.boundary_steps)
             rows.append(row)
             if row["status"] == "ok":
                 v, m = row["voromesh"], row["mc"]

@@ -123,7 +123,7 @@ class FitInfo:
 def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 200, 250),
         gamma: float = 0.5, batch_fraction: float = 0.2, k: int = FIT_K, n_samples: int | None = None,
         seed: int = 0, device: str = "cpu", threads: int | None = None, allow_open: bool = False,
-        progress: bool = False) -> tuple[VoroMesh, FitInfo]:
+        boundary_steps: int = 0, progress: bool = False) -> tuple[VoroMesh, FitInfo]:
     """Fit a VoroMesh to a triangle mesh, and report how the fit went.
 
     The mesh is mapped to the fit frame (:func:`voro3d.frames.fit_frame`: bounding box centred,
@@ -166,6 +166,12 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     allow_open : bool
         Accept a mesh with boundary edges; inside is then decided by winding number
         (see :class:`voro3d.queries.InsideOutside`).
+    boundary_steps : int
+        Steps on the faces between inside and outside cells alone after the labels
+        (:func:`fit_samples`). Off by default: on the 38 dev meshes at grid 32 (``benchmarks/bench_fit.py
+        --boundary-steps 40``, 2026-12-07) 40 of them lowered the mean CD 0.841 -> 0.777 (lower on 16,
+        at worst +1.5%), but NC 0.9708 -> 0.9701 and F1 0.9278 -> 0.9272: sub-voxel grooves
+        (abc_00000001, NC 0.912 -> 0.875) come out as jagged ridges instead of being smoothed over.
     progress : bool
         Show a tqdm progress bar over the steps (off by default, like every voro3d function).
 
@@ -214,7 +220,7 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
         sampled = time.perf_counter() - start
         result, info = fit_samples(samples, inside.occupancy, grid, frame=frame, steps=steps, lr=lr,
                                    milestones=milestones, gamma=gamma, batch_fraction=batch_fraction, k=k, seed=seed,
-                                   device=device, threads=threads, progress=progress)
+                                   device=device, threads=threads, boundary_steps=boundary_steps, progress=progress)
         return result, replace(info, sampling_seconds=sampled, total_seconds=info.total_seconds + sampled)
 
 
@@ -247,10 +253,10 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         most ``MAX_REFRESH_DISTANCE``); default ``REFRESH_VOXELS``.
     boundary_steps : int
         Steps, after the cells are labelled, on the loss of the faces between inside and outside
-        cells only (the kernel's ``sides``), at the schedule's last learning rate decayed once
-        more; the cells are then labelled again. The loss above pulls any face onto the samples:
-        in a wall a cell or two thick a face between two inside cells can hold them while an
-        inside cell pokes out.
+        cells only (the kernel's ``sides``: each sample to the nearest such face of its cell), at
+        the schedule's last learning rate decayed once more; the labels are kept. The loss above
+        pulls any face onto the samples: in a wall a cell or two thick a face between two inside
+        cells can hold them while an inside cell pokes out.
 
     Returns
     -------
@@ -291,7 +297,9 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
             faces = optimise_generators(samples, run.generators, grid, reach=reach, threads=threads,
                                         sides=result.occupancy, loop=run.loop, **on_faces)
             optimised += time.perf_counter() - labelled
-            result = labelled_voromesh(faces.generators, inside, grid, frame=frame)
+            # The labels the faces were fitted between stay: read again, a cell or two of a fit flip
+            # (meshes at grid 32: organic_homer CD 0.525 kept -> 0.600 read again, organic_armadillo 0.698 -> 0.827).
+            result = labelled_voromesh(faces.generators, inside, grid, frame=frame, occupancy=result.occupancy)
         generators = result.generators
         done = time.perf_counter()
         info = FitInfo(
@@ -331,8 +339,9 @@ def fit_schedule(*, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 20
                 device=_device(device), refresh_voxels=float(refresh_voxels))
 
 
-def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None) -> VoroMesh:
-    """The VoroMesh of fitted ``generators`` (fit frame), each cell labelled by ``inside`` (a fit-frame test).
+def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None, occupancy=None) -> VoroMesh:
+    """The VoroMesh of fitted ``generators`` (fit frame), each cell labelled by ``inside`` (a fit-frame test),
+    or keeping the labels ``occupancy`` (n,) bool where given.
 
     Triangulated once, in the result's units (through ``frame.invert``; None keeps the fit frame):
     the labels, any later pass and the extraction share it.
@@ -341,7 +350,8 @@ def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None) 
         generators = frame.invert(generators)
         inside = _in_frame(inside, frame)
     triangulation = triangulate(generators)
-    occupancy = label_cells(generators, inside, triangulation=triangulation)
+    if occupancy is None:
+        occupancy = label_cells(generators, inside, triangulation=triangulation)
     return VoroMesh(generators, occupancy, grid=grid, frame=frame, triangulation=triangulation)
 
 
