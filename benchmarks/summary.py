@@ -47,11 +47,12 @@ which no reconstruction can go below. It scores the mesh `reconstruct` returns (
 to the input), with faces, off-normal and sliver shares beside CD, F1 and NC. All VoroMesh
 outputs are watertight; DC's are in 16% (32³) and 26% (64³) of the shapes.""",
     "fit_32_boundary40": """\
-`python benchmarks/bench_fit.py --grids 32 --boundary-steps 40` (2026-12-07, load average 3 on
-2 cores: its seconds are contended): the same fits as `fit_32_64`'s 32³ rows with 40 more steps on
-the faces between inside and outside cells alone, labels kept (`voro3d.fit(boundary_steps=)`).
-Mean CD 0.841 -> 0.777 (lower on 16 shapes, at worst +1.5%), F1 0.928 -> 0.927, NC 0.971 -> 0.970:
-sub-voxel grooves (abc_00000001, NC 0.912 -> 0.875) come out as jagged ridges, so it is off by default.""",
+`python benchmarks/bench_fit.py --grids 32 --boundary-steps 40` (2026-12-07, quiet machine): the same
+fits as `fit_32_64`'s 32³ rows with 40 more steps on the faces between inside and outside cells
+alone, then labelled again (`voro3d.fit(boundary_steps=)`, as a cloud's fit does). Mean CD 0.841 ->
+0.790 (lower on 14 shapes), F1 0.928 -> 0.927, NC 0.971 -> 0.970, 1.58 -> 1.69 s a shape; but
+organic_homer +11.7% and organic_armadillo +8.5% (a cell flips when labelled again), and sub-voxel
+grooves (abc_00000001, NC 0.912 -> 0.872) come out as jagged ridges: off by default.""",
     "learned": """\
 `benchmarks/bench_learned.py`: the shipped model (`voro3d/models/voromesh_sdf.onnx`, its card in
 `models/README.md`) against Marching Cubes on the same SDF grid, on dev meshes it never saw:
@@ -383,10 +384,7 @@ before (7 of 11 split once, 4x their faces; timed beside the test suite). The ta
 (0.371) predates the Poisson target solved in two halves from 60k points (9e20eda), which took
 abc_00000006 from 0.385 to 0.273 (bisected). Rerun 2026-12-06 night with the fit's 40 steps on the
 faces between inside and outside cells (`CLOUD_BOUNDARY_STEPS`): 0.358 -> 0.359 (the code before, rerun
-the same night: 0.358; per mesh -0.08 to +0.08), mean CD 1.054 -> 1.021. Rerun 2026-12-07 with those steps
-keeping the labels they fitted (not read again after them): 0.3593 -> 0.3579 (abc_00000007 0.222 -> 0.203,
-the rest within 0.002), CD 1.021 -> 1.019. Poisson's own columns move from run to run (its solver
-runs on both threads here: depth 8 0.250 -> 0.275 between the two runs).""",
+the same night: 0.358; per mesh -0.08 to +0.08), mean CD 1.054 -> 1.021.""",
     "given_normals": """\
 `benchmarks/bench_given_normals.py`: clouds with their own normals (from `estimate_normals()`,
 negated, true) against the same clouds without; given normals are checked and re-oriented where

@@ -322,17 +322,6 @@ def test_fit_through_the_kernel_matches_the_torch_path(monkeypatch, boundary_ste
         assert check_watertight(extract_mesh(shape.generators, shape.occupancy), self_intersection=False).watertight
 
 
-def test_boundary_steps_keep_the_labels_their_faces_were_fitted_between():
-    calls = []
-
-    def inside(points):
-        calls.append(len(points))
-        return _inside(points)
-
-    shape, _ = fit_module.fit_samples(_sphere_samples(5_000), inside, 12, steps=40, boundary_steps=10)
-    assert len(calls) == 1 and calls[0] == len(shape.generators)  # read once, before those steps
-
-
 def test_boundary_steps_bring_the_labelled_faces_onto_the_samples():
     import open3d as o3d
 

@@ -169,9 +169,10 @@ def fit(mesh, grid: int = 32, *, steps: int = 400, lr: float = 0.005, milestones
     boundary_steps : int
         Steps on the faces between inside and outside cells alone after the labels
         (:func:`fit_samples`). Off by default: on the 38 dev meshes at grid 32 (``benchmarks/bench_fit.py
-        --boundary-steps 40``, 2026-12-07) 40 of them lowered the mean CD 0.841 -> 0.777 (lower on 16,
-        at worst +1.5%), but NC 0.9708 -> 0.9701 and F1 0.9278 -> 0.9272: sub-voxel grooves
-        (abc_00000001, NC 0.912 -> 0.875) come out as jagged ridges instead of being smoothed over.
+        --boundary-steps 40``, 2026-12-07) 40 of them lowered the mean CD 0.841 -> 0.790 (lower on 14),
+        but raised it on organic_homer (+11.7%) and organic_armadillo (+8.5%), where a cell flips when
+        labelled again, and NC 0.9708 -> 0.9700: sub-voxel grooves (abc_00000001, NC 0.912 -> 0.872)
+        come out as jagged ridges instead of being smoothed over.
     progress : bool
         Show a tqdm progress bar over the steps (off by default, like every voro3d function).
 
@@ -253,10 +254,10 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
         most ``MAX_REFRESH_DISTANCE``); default ``REFRESH_VOXELS``.
     boundary_steps : int
         Steps, after the cells are labelled, on the loss of the faces between inside and outside
-        cells only (the kernel's ``sides``: each sample to the nearest such face of its cell), at
-        the schedule's last learning rate decayed once more; the labels are kept. The loss above
-        pulls any face onto the samples: in a wall a cell or two thick a face between two inside
-        cells can hold them while an inside cell pokes out.
+        cells only (the kernel's ``sides``), at the schedule's last learning rate decayed once
+        more; the cells are then labelled again. The loss above pulls any face onto the samples:
+        in a wall a cell or two thick a face between two inside cells can hold them while an
+        inside cell pokes out.
 
     Returns
     -------
@@ -297,9 +298,11 @@ def fit_samples(samples, inside, grid: int, *, frame=None, steps: int = 400, lr:
             faces = optimise_generators(samples, run.generators, grid, reach=reach, threads=threads,
                                         sides=result.occupancy, loop=run.loop, **on_faces)
             optimised += time.perf_counter() - labelled
-            # The labels the faces were fitted between stay: read again, a cell or two of a fit flip
-            # (meshes at grid 32: organic_homer CD 0.525 kept -> 0.600 read again, organic_armadillo 0.698 -> 0.827).
-            result = labelled_voromesh(faces.generators, inside, grid, frame=frame, occupancy=result.occupancy)
+            # Labelled again: keeping the labels the faces were fitted between (2026-12-07) left the cells
+            # that moved across the target inside, a spike on organic_camel_b's leg (clean 100k CD 0.394 ->
+            # 0.890, dense 38 meshes 0.6456 -> 0.6606); it won elsewhere (12 benchmark meshes x 6
+            # conditions: CD 0.15-0.8% lower; meshes at grid 32: organic_homer 0.600 -> 0.525).
+            result = labelled_voromesh(faces.generators, inside, grid, frame=frame)
         generators = result.generators
         done = time.perf_counter()
         info = FitInfo(
@@ -339,9 +342,8 @@ def fit_schedule(*, steps: int = 400, lr: float = 0.005, milestones=(80, 120, 20
                 device=_device(device), refresh_voxels=float(refresh_voxels))
 
 
-def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None, occupancy=None) -> VoroMesh:
-    """The VoroMesh of fitted ``generators`` (fit frame), each cell labelled by ``inside`` (a fit-frame test),
-    or keeping the labels ``occupancy`` (n,) bool where given.
+def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None) -> VoroMesh:
+    """The VoroMesh of fitted ``generators`` (fit frame), each cell labelled by ``inside`` (a fit-frame test).
 
     Triangulated once, in the result's units (through ``frame.invert``; None keeps the fit frame):
     the labels, any later pass and the extraction share it.
@@ -350,8 +352,7 @@ def labelled_voromesh(generators: np.ndarray, inside, grid: int, *, frame=None, 
         generators = frame.invert(generators)
         inside = _in_frame(inside, frame)
     triangulation = triangulate(generators)
-    if occupancy is None:
-        occupancy = label_cells(generators, inside, triangulation=triangulation)
+    occupancy = label_cells(generators, inside, triangulation=triangulation)
     return VoroMesh(generators, occupancy, grid=grid, frame=frame, triangulation=triangulation)
 
 

@@ -386,15 +386,15 @@ SEPARATE_POINTS = 200_000
 # abc_00000009 NC 0.9943 -> 0.9916 and 13% more faces; abc_00000001, screwdriver and rocker-arm CD -2.6% to +0.3%, NC
 # at worst -0.0007 (bench_edges over its 11 meshes: edge F-score 0.355 -> 0.371).
 CLOUD_STEPS = 120
-# Steps on the faces between inside and outside cells alone after the labels, which they keep (fitting.fit_samples'
-# boundary_steps; not in the tiles over TILE_POINTS). In poste_france's slab, a cell or two thick, faces between inside
-# cells held the samples while inside cells poked out: the mesh area near the points tilted over 30 degrees off their
-# plane fits, seeds 0 / 1 / 2, 2.0% / 0.17% / 0.17% -> 0.14% / 0.16% / 0.16% (40 more ordinary steps: bumps). 12 bench
-# meshes, grid 64, no normals (2026-12-07), mean CD / NC without -> with: 1 / 3 / 6 views 138.61 / 39.17 / 1.286 ->
-# 138.45 / 39.19 / 1.287, NC 0.8146 / 0.9167 / 0.9723 -> 0.8145 / 0.9167 / 0.9729; clean 5k / 20k, 0.5% noise 2.434 /
-# 0.635 / 1.361 -> 2.429 / 0.630 / 1.352, NC +0.0002 to +0.0006; F1 +0.0002 to +0.0012; per cloud 0.95-1.02x. With 100
-# main steps (2026-12-06) the same CD, 0.13 s less, but edge F-score 0.353 against 0.358. Rerun: bench_pointcloud.py
-# --no-poisson and bench_edges.py with the constant set; the tilted share from reconstruct_points on poste_france.xyz.
+# Steps on the faces between inside and outside cells alone after the labels (fitting.fit_samples' boundary_steps; not
+# in the tiles over TILE_POINTS). In poste_france's slab, a cell or two thick, faces between inside cells held the
+# samples while inside cells poked out: the mesh area near the points tilted over 30 degrees off their plane fits,
+# seeds 0 / 1 / 2, 2.0% / 0.17% / 0.17% -> 0.14% / 0.16% / 0.16% (40 more ordinary steps: bumps). 12 benchmark meshes,
+# grid 64, no normals (2026-12-06, quiet), mean CD / NC without -> with: 1 / 3 / 6 views 138.61 / 39.17 / 1.286 ->
+# 138.69 / 39.24 / 1.289, NC 0.8146 / 0.9167 / 0.9723 -> 0.8143 / 0.9164 / 0.9730; clean 5k / 20k, 0.5% noise 2.434 /
+# 0.635 / 1.361 -> 2.429 / 0.632 / 1.352, NC +0.0002 to +0.0006; F1 within 0.0012; per cloud 0.95-1.08x; the fit 0.28
+# s a cloud longer. bench_edges 0.358 -> 0.359; with 100 main steps the same CD, 0.13 s less, edge F-score 0.353.
+# Rerun: bench_pointcloud.py --no-poisson, bench_edges.py, with the constant set.
 CLOUD_BOUNDARY_STEPS = 40
 # VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh
 # is fitted to the target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view
