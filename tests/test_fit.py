@@ -111,6 +111,13 @@ def test_candidates_are_searched_again_after_moves(sphere, monkeypatch):
     assert often.candidate_searches > never.candidate_searches == 1
 
 
+def test_boundary_steps_are_an_option_of_fit(sphere):
+    plain, plain_info = fit(sphere, 12, **TINY)
+    ended, ended_info = fit(sphere, 12, boundary_steps=10, **TINY)
+    assert not np.array_equal(ended.generators, plain.generators)  # the steps ran on the mesh's fit
+    assert ended_info.n_generators == plain_info.n_generators
+
+
 def test_refresh_distance_is_an_option_of_fit_samples():
     samples, _ = sample_surface(o3d.geometry.TriangleMesh.create_sphere(radius=0.8, resolution=30), 20_000, seed=0)
     inside = lambda points: np.linalg.norm(points, axis=1) < 0.8  # noqa: E731
@@ -205,6 +212,7 @@ def test_open_mesh_needs_allow_open():
         (dict(milestones=(10, -1)), ValueError, "milestones"),
         (dict(device="tpu"), ValueError, "device"),
         (dict(device=3.5), ValueError, "device"),
+        (dict(boundary_steps=-1), ValueError, "boundary_steps"),
     ],
 )
 def test_bad_arguments(sphere, kwargs, error, match):
