@@ -143,6 +143,21 @@ def test_open_mesh_is_refused_unless_allowed(sphere):
     assert inside.tolist() == [True, False, False]
 
 
+def test_prepare_builds_ahead_and_answers_the_same(sphere):
+    """prepare() does ahead of time what the first inside test would (a split Poisson target's half,
+    while the other half is solved): the same answers, closed or not."""
+    vertices, triangles = sphere
+    bowl = triangles[vertices[triangles].mean(axis=1)[:, 2] > -0.3]
+    points = np.random.default_rng(2).uniform(-0.7, 0.7, (400, 3))
+    for mesh, closed in (((vertices, triangles), True), ((vertices, bowl), False)):
+        ready = InsideOutside(mesh, allow_open=True)
+        assert ready.prepare() is ready
+        fresh = InsideOutside(mesh, allow_open=True)
+        np.testing.assert_array_equal(ready.occupancy(points), fresh.occupancy(points))
+        np.testing.assert_array_equal(ready.unsigned_distance(points), fresh.unsigned_distance(points))
+        assert ready.closed is fresh.closed is closed
+
+
 def test_open_mesh_occupancy_equals_the_exact_winding_number_test(sphere):
     vertices, triangles = sphere
     bowl = triangles[vertices[triangles].mean(axis=1)[:, 2] > -0.3]

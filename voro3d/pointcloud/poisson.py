@@ -88,6 +88,9 @@ class PoissonSurface:
         own side of it, which meet along the plane within a fraction of an octree cell.
     halves : tuple of two (vertices, triangles)
         Of a split surface: each half's whole closed mesh, which decides inside on its side.
+    queries : tuple
+        Of a split surface: :class:`~voro3d.queries.InsideOutside` of its first halves, built
+        already; the rest are built here.
     """
 
     vertices: np.ndarray
@@ -95,13 +98,15 @@ class PoissonSurface:
     resolution: int
     cut: tuple[int, float] | None = None
     halves: tuple = field(default=(), repr=False)
+    queries: tuple = field(default=(), repr=False, compare=False)
     dense: bool = field(default=False, init=False)
 
     def __post_init__(self):
         from ..queries import InsideOutside
 
         self._query = InsideOutside((self.vertices, self.triangles), allow_open=True)
-        self._halves = [InsideOutside(half, allow_open=True) for half in self.halves]
+        self._halves = list(self.queries) + [InsideOutside(half, allow_open=True)
+                                             for half in self.halves[len(self.queries):]]
 
     def inside(self, queries: np.ndarray) -> np.ndarray:
         """(q, 3) fit-frame points -> (q,) bool: inside the mesh (ray parity, winding number
@@ -176,6 +181,8 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     ValueError
         Poisson returned no surface.
     """
+    from ..queries import InsideOutside
+
     if points.shape[0] < SPLIT_POINTS:
         return PoissonSurface(*_half(points, normals, depth, OCTREE_SCALE, filter_width), resolution=2**depth)
     extent = np.ptp(points, axis=0)
@@ -190,12 +197,15 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     if helper is not None:
         helper.submit(*jobs[1])
     first = _half(*jobs[0])
+    # Built while the helper finishes its half, which took 0-0.3 s longer at 10^5 points (its files).
+    ready = (InsideOutside(first, allow_open=True).prepare(),)
     second = None if helper is None else helper.result()
     halves = [first, _half(*jobs[1]) if second is None else second]
     kept = [_side(*halves[0], axis, cut, low=True), _side(*halves[1], axis, cut, low=False)]
     vertices = np.vstack([kept[0][0], kept[1][0]])
     triangles = np.vstack([kept[0][1], kept[1][1] + kept[0][0].shape[0]])
-    return PoissonSurface(vertices, triangles, resolution=2**depth, cut=(axis, cut), halves=tuple(halves))
+    return PoissonSurface(vertices, triangles, resolution=2**depth, cut=(axis, cut), halves=tuple(halves),
+                          queries=ready)
 
 
 def _solve(points, normals, depth: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
