@@ -182,30 +182,17 @@ class InsideOutside:
                 "generalized winding number, or reconstruct points sampled on it as a point cloud")
         self.scene = raycasting_scene(self.vertices, self.triangles)
 
-    # The edge counts are read on the first inside test (with allow_open): a mesh queried only for
-    # distances (a split Poisson target's whole surface, 375k triangles: 0.08 s) never counts them.
-    @cached_property
-    def _edge_counts(self) -> np.ndarray:
-        return welded_edge_counts(self.vertices, self.triangles)
-
-    @cached_property
-    def closed(self) -> bool:
-        return bool((self._edge_counts == 2).all())
-
-    @cached_property
-    def _parity(self) -> bool:
-        # Crossing parity needs only an even count on every edge (two sheets that touch along an
-        # edge, as Poisson leaves, are 4): the winding number everywhere instead cost 12 of the
-        # 20 s of a lid's Poisson target with one such edge.
-        return bool((self._edge_counts % 2 == 0).all())
+    # Counted on the first inside test (with allow_open): a mesh queried for distances only (a split
+    # Poisson target's whole surface, 375k triangles: 0.08 s) never counts its edges. Crossing parity
+    # needs only an even count on every edge (two sheets that touch along an edge, as Poisson leaves,
+    # are 4): the winding number everywhere instead cost 12 of the 20 s of a lid's Poisson target.
+    _edge_counts = cached_property(lambda self: welded_edge_counts(self.vertices, self.triangles))
+    closed = cached_property(lambda self: bool((self._edge_counts == 2).all()))
+    _parity = cached_property(lambda self: bool((self._edge_counts % 2 == 0).all()))
 
     def prepare(self) -> "InsideOutside":
-        """Build now what the first inside test would (the edge counts, the scene's search tree);
-        returns self. For work that waits anyway: the answers are the same either way."""
-        import open3d as o3d
-
-        self._parity
-        self.scene.count_intersections(o3d.core.Tensor(np.array([[0, 0, 0, 1, 0, 0]], np.float32)))
+        """Build now what the first inside test would (edge counts, the scene's search tree): self."""
+        self.occupancy(self.vertices[:1])
         return self
 
     @staticmethod
