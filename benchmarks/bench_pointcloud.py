@@ -3,8 +3,9 @@
 Each dev mesh (default ``../shared/data/dev``, else the bundled examples) is sampled into
 clouds *without normals* under the conditions of ``CONDITIONS``: sparse to dense clean clouds,
 Gaussian noise, a 20x density ramp, uniform outliers in the bounding box, a third of the surface
-missing, range scans from 1, 3 and 6 viewpoints (``range_scan``), and one view of a depth camera's
-frame, ~300k points (``dense range scan 1 view``: only when named). On each cloud:
+missing, range scans from 1, 3 and 6 viewpoints (``range_scan``), and, only when named, one view of a
+depth camera's frame, ~300k points (``dense range scan 1 view``) and range scans from 1 and 3
+viewpoints with a consumer depth sensor's noise (``noisy range scan ...``). On each cloud:
 
 * VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
   target surface, fit), timed with its split, and ``cloud_mesh`` (extraction, clean, fit to the
@@ -54,6 +55,8 @@ CONDITIONS = {
     "range scan 3 views": ("range", 30_000, 3),
     "range scan 6 views": ("range", 30_000, 6),
     "dense range scan 1 view": ("dense range", 300_000, 1),
+    "noisy range scan 1 view": ("noisy range", 30_000, 1),
+    "noisy range scan 3 views": ("noisy range", 30_000, 3),
 }
 # The virtual range scanner (make_cloud's "range" kind): a pinhole camera of this field of view and
 # pixel count looking at the shape's centre from RANGE_DISTANCE diagonals away; hits whose surface
@@ -65,6 +68,9 @@ DENSE_RANGE_PIXELS = (1600, 1200)  # a depth camera's frame: ~300k points of one
 RANGE_DISTANCE = 1.6
 RANGE_GRAZING = 75.0
 RANGE_NOISE = 0.0005
+# The "noisy range" kind's depth noise, of the diagonal: a structured-light or time-of-flight sensor's
+# few millimetres on an object of about a metre.
+NOISY_RANGE_NOISE = 0.003
 COLOURED = "clean 20k"
 PICTURED = ("organic_bunny.off", "cad_fandisk.obj")
 # Seconds given to Open3D's normal orientation before the baseline falls back to ours.
@@ -74,7 +80,7 @@ ORIENT_TIMEOUT = 120
 # parts as slow (fandisk at 10^5 points: 437 s).
 ORIENT_NEIGHBOURS = 30
 PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views",
-                       "dense range scan 1 view")
+                       "dense range scan 1 view", "noisy range scan 1 view", "noisy range scan 3 views")
 
 
 def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
@@ -87,8 +93,9 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     kind, n, parameter = CONDITIONS[condition]
     vertices, triangles = mesh_arrays(mesh)
     rng = np.random.default_rng(seed + 1)
-    if kind in ("range", "dense range"):
-        return range_scan(vertices, triangles, parameter, n, rng, DENSE_RANGE_PIXELS if kind == "dense range" else RANGE_PIXELS)
+    if kind in ("range", "dense range", "noisy range"):
+        return range_scan(vertices, triangles, parameter, n, rng, DENSE_RANGE_PIXELS if kind == "dense range" else RANGE_PIXELS,
+                          noise=NOISY_RANGE_NOISE if kind == "noisy range" else RANGE_NOISE)
     if kind == "ramp":
         points, _ = sample_surface((vertices, triangles), 4 * n, seed=seed)
         along = (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
@@ -108,9 +115,9 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     return points
 
 
-def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS) -> np.ndarray:
+def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS, *, noise: float = RANGE_NOISE) -> np.ndarray:
     """Points a range scanner of ``pixels`` (width, height) sees from ``views`` viewpoints (at most ``n``
-    in all, drawn evenly).
+    in all, drawn evenly), with depth noise along the ray of ``noise`` times the diagonal.
 
     Viewpoints: one for 1; otherwise spread in longitude around the vertical at 30 degrees of
     elevation (3 views), or the six directions of a cube, turned at random. Each camera casts
@@ -141,7 +148,7 @@ def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS
         normal = hit["primitive_normals"].numpy()
         unit = rays[:, 3:] / np.linalg.norm(rays[:, 3:], axis=1, keepdims=True)
         seen = np.isfinite(depth) & (np.abs(np.einsum("ij,ij->i", normal, unit)) > np.cos(np.radians(RANGE_GRAZING)))
-        distance = depth[seen] * np.linalg.norm(rays[seen, 3:], axis=1) + rng.normal(scale=RANGE_NOISE * diagonal,
+        distance = depth[seen] * np.linalg.norm(rays[seen, 3:], axis=1) + rng.normal(scale=noise * diagonal,
                                                                                    size=int(seen.sum()))
         found.append(rays[seen, :3] + distance[:, None] * unit[seen])
     points = np.vstack(found)
@@ -610,7 +617,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=Path, default=SHARED / "dev" if (SHARED / "dev").is_dir() else None)
     parser.add_argument("--shapes", nargs="*", help="file names in --folder (default: all)")
-    parser.add_argument("--conditions", nargs="*", default=[c for c in CONDITIONS if not c.startswith("dense")],
+    parser.add_argument("--conditions", nargs="*", default=[c for c in CONDITIONS if not c.startswith(("dense", "noisy"))],
                         choices=list(CONDITIONS))
     parser.add_argument("--grid", default="64", help="VoroMesh grid, or auto")
     parser.add_argument("--scans", action="store_true", help="also the real scans in ../shared/data/scans")
@@ -630,8 +637,8 @@ def main():
     parser.add_argument("--poisson-escape", help="MAX_POISSON_ESCAPE for this run (share of the diagonal, or none: "
                         "never refused), the ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
-    parser.add_argument("--sheet-near", type=float, help="SHEET_NEAR for this run (inf: no such rule), the ablation "
-                        "beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--sheet-support", type=float, help="SHEET_SUPPORT for this run (inf: no such rule), the "
+                        "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--pictured", nargs="+", default=list(PICTURED), help="shapes whose meshes the picture shows")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
@@ -660,8 +667,8 @@ def main():
         targets_module.MAX_POISSON_ESCAPE = np.inf if args.poisson_escape == "none" else float(args.poisson_escape)
     if args.dense_spacings is not None:
         reconstruct_module.DENSE_SPACINGS = args.dense_spacings
-    if args.sheet_near is not None:
-        plan_module.SHEET_NEAR = args.sheet_near
+    if args.sheet_support is not None:
+        plan_module.SHEET_SUPPORT = args.sheet_support
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -675,7 +682,7 @@ def main():
                 hole_level="default" if args.hole_level is None else args.hole_level,
                 poisson_escape=args.poisson_escape or "default",
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
-                sheet_near="default" if args.sheet_near is None else args.sheet_near,
+                sheet_support="default" if args.sheet_support is None else args.sheet_support,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:

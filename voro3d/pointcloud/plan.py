@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..geometry import grid_voxel
-from .tuning import HEAVY_NOISE, SHEET_NEAR, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SURFACE_GATE, SHEET_WIN
+from .tuning import HEAVY_NOISE, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SUPPORT, SHEET_SURFACE_GATE, SHEET_WIN
 
 __all__ = ["CloudPlan", "as_plan", "NORMALS", "SWITCHES", "TARGETS"]
 
@@ -127,9 +127,10 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     """The offset shell of the points when it fits them much better than ``target``, else None.
 
     Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
-    ``SHEET_SURFACE_GATE``); kept when the points lie within ``SHEET_NEAR`` times as far from it as
-    from the target, and its misfit (mean distance points -> surface plus surface -> points) is under
-    ``SHEET_WIN`` times the target's.
+    ``SHEET_SURFACE_GATE``); kept when the points hold it on both faces (its surface lies within
+    ``SHEET_SUPPORT`` spacings of them on average: a wall sampled on both sides, not one side of
+    a solid or an open sheet, whose shell has an empty face) and its misfit (mean distance points
+    -> surface plus surface -> points) is under ``SHEET_WIN`` times the target's.
     ``distance``: the distance of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point
     to ``target``, when already measured.
     """
@@ -143,10 +144,10 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     if strays <= SHEET_SURFACE_GATE * spacing:
         return None
     sheet = sheet_target(points, spacing, resolution)
-    to_sheet = float(np.mean(sheet.distance(sample)))
-    if to_sheet > SHEET_NEAR * to_target:
+    held = _surface_to_points(sheet, points)
+    if held > SHEET_SUPPORT * spacing:
         return None
-    return sheet if to_sheet + _surface_to_points(sheet, points) < SHEET_WIN * (to_target + strays) else None
+    return sheet if float(np.mean(sheet.distance(sample))) + held < SHEET_WIN * (to_target + strays) else None
 
 
 def sheet_target(points, spacing: float, resolution: int):

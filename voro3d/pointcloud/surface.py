@@ -351,7 +351,7 @@ def target_surface(points, normals, widths, resolution: int, *, dense: bool = Fa
     # The band reaches a node past the points, so that both ends of an edge the surface crosses read
     # the IMLS field: with the kernels of a dense scan (a tenth of a node, the bunny from 1 view at
     # 10^6 points) the nodes beside the points read the far field, the points lay 0.17 nodes off the
-    # surface and the offset shell won (SHEET_NEAR); floored, 0.05 nodes. Wider kernels are left:
+    # surface and the offset shell won; floored, 0.05 nodes. Wider kernels are left:
     # 1 / 3 / 6-view range scans at 30k points, a third missing and clean 100k clouds of the 12
     # benchmark meshes keep their CDs (--no-poisson, 2026-12-06).
     widths = np.maximum(widths, step / IMLS_BAND)
