@@ -298,7 +298,7 @@ SHEET_WIN = 0.7
 # noisy range scans) the points lie 0.17-0.33 spacings off any smooth target and the shell, a blob a spacing off them,
 # was taken on 59 of 76 clouds (38 dev meshes, 1 and 3 views; 12 benchmark meshes CD / NC / F1 509 / 0.769 / 0.144
 # and 63.5 / 0.879 / 0.322 -> 134.7 / 0.805 / 0.372 and 40.8 / 0.898 / 0.644; abc_00000008 lost, 20.4 -> 152.9 from 3).
-# Read on the 83 of 286 clouds at grid 64 that build it (those 76, 38 meshes' 1 / 3 / 6-view scans, 12 meshes x 7
+# Read on the 84 of 286 clouds at grid 64 that build it (those 76, 38 meshes' 1 / 3 / 6-view scans, 12 meshes x 7
 # more conditions, cup and lid 5k-100k): 0.55-0.69 where it wins (lid abc_00000007 at 5k / 20k / 6 views / 0.5% noise,
 # cup abc_00000009 at 5k), 0.81-1.39 on the noisy scans, 4.2-6.0 on dense one-view scans. Coarser nodes than the
 # spacing read higher: at grid 32 the lid at 5k 0.76, test_walls_thinner_than_the_spacing's cup 0.95 (now IMLS's solid,
