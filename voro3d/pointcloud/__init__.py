@@ -94,7 +94,8 @@ the points define (``voro3d/pointcloud/``):
      when its misfit (mean distance points → surface + surface → points) is under 0.7 of the
      target's (``SHEET_WIN``) and the points hold it on both faces (``SHEET_SUPPORT``: its surface
      lies within 0.78 spacings of them on average; around a wall's two sides 0.55-0.76, around one
-     side of a solid or an open scan, whose depth noise alone passes the first test, 0.8 and more). The wall then comes out as a thin solid that follows both of its sides (a cup lid,
+     side of a solid or an open scan, whose depth noise alone passes the first test, 0.8 and more).
+     The wall then comes out as a thin solid that follows both of its sides (a cup lid,
      abc_00000007, grid 64: CD 2.6 at 20k points and 2.3 from 6 range views, against 14.7 and
      62 before; alpha wrap 2.5). ``PointCloudInfo.target`` says which target was used.
 4. **Fit**: 75·g² samples (``CLOUD_SAMPLES_PER_FACE``; a mesh fit takes 150·g²) of the target
