@@ -76,6 +76,24 @@ def test_circumcenters_of_clustered_generators_are_accurate():
     assert np.abs(centres - exact).max() <= 1e-14 * np.ptp(points, axis=0).max()
 
 
+def test_circumcenters_far_from_the_origin_stay_on_the_float_path(monkeypatch):
+    # Survey coordinates: a 64 m object 5e6 m out. Rounding a centre there costs eps |centre| on either path,
+    # so it must not send more tetrahedra down the exact one than at the origin (it sent all: 20k points 43 s -> 6 s).
+    import voro3d.delaunay as delaunay
+
+    sent, original = [], _cgal.exact_circumcenters
+    monkeypatch.setattr(_cgal, "exact_circumcenters", lambda p, t: sent.append(len(t)) or original(p, t))
+    near = 64.0 * POINTS
+    far = np.array([512345.0, 5412345.0, 250.0]) + near
+    tets, _ = _cgal.delaunay_tetrahedra(far)
+    delaunay.circumcenters(near, tets)
+    at_origin, sent[:] = sum(sent), []
+    centres = delaunay.circumcenters(far, tets)
+    assert sum(sent) <= at_origin < len(tets) // 2
+    exact = original(far, tets)
+    assert np.abs(centres - exact).max() <= 1e-14 * np.ptp(far, axis=0).max() + 2 * np.spacing(np.abs(exact).max())
+
+
 @pytest.mark.parametrize("points, error, match", [
     (np.zeros((5, 2)), ValueError, r"points must have shape \(n, 3\), got \(5, 2\)"),
     (np.zeros(3), ValueError, r"points must have shape \(n, 3\), got \(3,\)"),

@@ -210,14 +210,15 @@ def circumcenters(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         offset = numerator / (2 * det[:, None])
         centres = a + offset
-        # |error| <= eps (S + 2 R P) / (2 |det|) + eps |a|: P = |u||v||w| bounds the determinant's
+        # |error of offset| <= eps (S + 2 R P) / (2 |det|): P = |u||v||w| bounds the determinant's
         # terms, S = P (|u| + |v| + |w|) the numerator's (|u|^2 |v||w| and so on), R = |offset|.
-        # Doubled for the terms it drops.
+        # Doubled for the terms it drops. Adding a rounds by eps |a| / 2, as rounding the exact
+        # centre does: far from the origin (survey coordinates, 5e6 m for a 64 m object) that
+        # alone passed the bound, and every tetrahedron went the exact way for nothing.
         lengths = np.sqrt(np.stack([uu, vv, ww], axis=1))
         products = lengths.prod(axis=1)
         spread = products * lengths.sum(axis=1)
-        error = np.finfo(np.float64).eps * ((spread + 2 * np.linalg.norm(offset, axis=1) * products)
-                                           / np.abs(det) + 2 * np.abs(a).max(axis=1))
+        error = np.finfo(np.float64).eps * (spread + 2 * np.linalg.norm(offset, axis=1) * products) / np.abs(det)
         extent = float(np.ptp(points, axis=0).max()) if points.size else 0.0
         inexact = ~(error <= _MAX_ERROR * extent)
     if inexact.any():
