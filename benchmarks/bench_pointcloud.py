@@ -5,7 +5,9 @@ clouds *without normals* under the conditions of ``CONDITIONS``: sparse to dense
 Gaussian noise, a 20x density ramp, uniform outliers in the bounding box, a third of the surface
 missing, range scans from 1, 3 and 6 viewpoints (``range_scan``), and, only when named, one view of a
 depth camera's frame, ~300k points (``dense range scan 1 view``) and range scans from 1 and 3
-viewpoints with a consumer depth sensor's noise (``noisy range scan ...``). On each cloud:
+viewpoints with a consumer depth sensor's noise (``noisy range scan ...``), from 3 and 6 whose views
+registration left a little apart (``misaligned range scan ...``), and from 1 and 3 with a time-of-flight
+camera's flying pixels at depth edges (``flying pixels range scan ...``). On each cloud:
 
 * VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
   target surface, fit), timed with its split, and ``cloud_mesh`` (extraction, clean, fit to the
@@ -57,6 +59,10 @@ CONDITIONS = {
     "dense range scan 1 view": ("dense range", 300_000, 1),
     "noisy range scan 1 view": ("noisy range", 30_000, 1),
     "noisy range scan 3 views": ("noisy range", 30_000, 3),
+    "misaligned range scan 3 views": ("misaligned range", 30_000, 3),
+    "misaligned range scan 6 views": ("misaligned range", 30_000, 6),
+    "flying pixels range scan 1 view": ("flying range", 30_000, 1),
+    "flying pixels range scan 3 views": ("flying range", 30_000, 3),
 }
 # The virtual range scanner (make_cloud's "range" kind): a pinhole camera of this field of view and
 # pixel count looking at the shape's centre from RANGE_DISTANCE diagonals away; hits whose surface
@@ -71,6 +77,17 @@ RANGE_NOISE = 0.0005
 # The "noisy range" kind's depth noise, of the diagonal: a structured-light or time-of-flight sensor's
 # few millimetres on an object of about a metre.
 NOISY_RANGE_NOISE = 0.003
+# The "misaligned range" kind: each view moved by its own rigid motion, as registration (ICP) leaves
+# merged scans: a turn about a random axis through the centre of N(0, MISALIGN_DEGREES) degrees and a
+# shift of N(0, MISALIGN_SHIFT) diagonals per axis (0.1-0.4% of the diagonal where the views overlap).
+MISALIGN_DEGREES = 0.3
+MISALIGN_SHIFT = 0.002
+# The "flying range" kind: a time-of-flight camera's mixed pixels. A pixel beside a depth edge (a 4-neighbour
+# missed or over FLYING_EDGE diagonals away) returns, with probability FLYING_SHARE, a depth up to
+# FLYING_DEPTH diagonals behind its surface (mixed with the background) instead of the surface's.
+FLYING_SHARE = 0.5
+FLYING_EDGE = 0.02
+FLYING_DEPTH = 0.1
 COLOURED = "clean 20k"
 PICTURED = ("organic_bunny.off", "cad_fandisk.obj")
 # Seconds given to Open3D's normal orientation before the baseline falls back to ours.
@@ -80,7 +97,8 @@ ORIENT_TIMEOUT = 120
 # parts as slow (fandisk at 10^5 points: 437 s).
 ORIENT_NEIGHBOURS = 30
 PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views",
-                       "dense range scan 1 view", "noisy range scan 1 view", "noisy range scan 3 views")
+                       "dense range scan 1 view", "noisy range scan 1 view", "noisy range scan 3 views",
+                       "misaligned range scan 3 views", "flying pixels range scan 3 views")
 
 
 def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
@@ -93,9 +111,11 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     kind, n, parameter = CONDITIONS[condition]
     vertices, triangles = mesh_arrays(mesh)
     rng = np.random.default_rng(seed + 1)
-    if kind in ("range", "dense range", "noisy range"):
+    if kind.endswith("range"):
         return range_scan(vertices, triangles, parameter, n, rng, DENSE_RANGE_PIXELS if kind == "dense range" else RANGE_PIXELS,
-                          noise=NOISY_RANGE_NOISE if kind == "noisy range" else RANGE_NOISE)
+                          noise=NOISY_RANGE_NOISE if kind == "noisy range" else RANGE_NOISE,
+                          misalign=(MISALIGN_DEGREES, MISALIGN_SHIFT) if kind == "misaligned range" else None,
+                          flying=FLYING_SHARE if kind == "flying range" else 0.0)
     if kind == "ramp":
         points, _ = sample_surface((vertices, triangles), 4 * n, seed=seed)
         along = (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
@@ -115,13 +135,17 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
     return points
 
 
-def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS, *, noise: float = RANGE_NOISE) -> np.ndarray:
+def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS, *, noise: float = RANGE_NOISE,
+               misalign: tuple[float, float] | None = None, flying: float = 0.0) -> np.ndarray:
     """Points a range scanner of ``pixels`` (width, height) sees from ``views`` viewpoints (at most ``n``
     in all, drawn evenly), with depth noise along the ray of ``noise`` times the diagonal.
 
     Viewpoints: one for 1; otherwise spread in longitude around the vertical at 30 degrees of
     elevation (3 views), or the six directions of a cube, turned at random. Each camera casts
     Open3D's pinhole rays (``RaycastingScene.create_rays_pinhole``) at the shape's centre.
+    ``misalign`` (degrees, diagonals): each view's points then turned and shifted by their own
+    random rigid motion (``MISALIGN_DEGREES``). ``flying``: the share of pixels beside a depth edge
+    that return a mixed depth behind it (``FLYING_SHARE``).
     """
     import open3d as o3d
 
@@ -148,11 +172,35 @@ def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS
         normal = hit["primitive_normals"].numpy()
         unit = rays[:, 3:] / np.linalg.norm(rays[:, 3:], axis=1, keepdims=True)
         seen = np.isfinite(depth) & (np.abs(np.einsum("ij,ij->i", normal, unit)) > np.cos(np.radians(RANGE_GRAZING)))
-        distance = depth[seen] * np.linalg.norm(rays[seen, 3:], axis=1) + rng.normal(scale=noise * diagonal,
-                                                                                   size=int(seen.sum()))
-        found.append(rays[seen, :3] + distance[:, None] * unit[seen])
+        distance = (depth * np.linalg.norm(rays[:, 3:], axis=1)).astype(np.float64)
+        distance[seen] += rng.normal(scale=noise * diagonal, size=int(seen.sum()))
+        if flying:
+            mixed = _depth_edges(distance, pixels, FLYING_EDGE * diagonal) & (rng.random(distance.shape) < flying)
+            distance[mixed] += rng.uniform(0.0, FLYING_DEPTH * diagonal, int(mixed.sum()))
+            seen |= mixed
+        points = rays[seen, :3] + distance[seen, None] * unit[seen]
+        if misalign is not None:
+            axis = rng.normal(size=3)
+            turn = o3d.geometry.get_rotation_matrix_from_axis_angle(
+                axis / np.linalg.norm(axis) * np.radians(misalign[0]) * rng.normal())
+            points = (points - centre) @ turn.T + centre + rng.normal(scale=misalign[1] * diagonal, size=3)
+        found.append(points)
     points = np.vstack(found)
     return points[rng.permutation(len(points))[:n]]
+
+
+def _depth_edges(distance, pixels, gap: float) -> np.ndarray:
+    """(w h,) bool: the hit pixels of a row-major depth image (``distance``, inf where missed) with a
+    4-neighbour that missed or lies over ``gap`` away."""
+    width, height = pixels
+    image = np.where(np.isfinite(distance), distance, np.inf).reshape(height, width)
+    padded = np.pad(image, 1, constant_values=np.inf)
+    edge = np.zeros((height, width), bool)
+    for rows, columns in ((slice(1, -1), slice(2, None)), (slice(1, -1), slice(None, -2)),
+                          (slice(2, None), slice(1, -1)), (slice(None, -2), slice(1, -1))):
+        with np.errstate(invalid="ignore"):
+            edge |= ~(np.abs(padded[rows, columns] - image) <= gap)
+    return (edge & np.isfinite(image)).reshape(-1)
 
 
 def dev_parser(doc: str, shapes, out: Path):
@@ -617,7 +665,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=Path, default=SHARED / "dev" if (SHARED / "dev").is_dir() else None)
     parser.add_argument("--shapes", nargs="*", help="file names in --folder (default: all)")
-    parser.add_argument("--conditions", nargs="*", default=[c for c in CONDITIONS if not c.startswith(("dense", "noisy"))],
+    parser.add_argument("--conditions", nargs="*", default=[c for c in CONDITIONS if c.startswith(("clean", "noise", "density", "outliers", "third", "range"))],
                         choices=list(CONDITIONS))
     parser.add_argument("--grid", default="64", help="VoroMesh grid, or auto")
     parser.add_argument("--scans", action="store_true", help="also the real scans in ../shared/data/scans")
