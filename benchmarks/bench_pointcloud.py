@@ -7,7 +7,8 @@ missing, range scans from 1, 3 and 6 viewpoints (``range_scan``), and, only when
 depth camera's frame, ~300k points (``dense range scan 1 view``) and range scans from 1 and 3
 viewpoints with a consumer depth sensor's noise (``noisy range scan ...``), from 3 and 6 whose views
 registration left a little apart (``misaligned range scan ...``), and from 1 and 3 with a time-of-flight
-camera's flying pixels at depth edges (``flying pixels range scan ...``). On each cloud:
+camera's flying pixels at depth edges (``flying pixels range scan ...``), and clouds of 300 to 5k
+points (``sparse ...``). On each cloud:
 
 * VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
   target surface, fit), timed with its split, and ``cloud_mesh`` (extraction, clean, fit to the
@@ -63,6 +64,11 @@ CONDITIONS = {
     "misaligned range scan 6 views": ("misaligned range", 30_000, 6),
     "flying pixels range scan 1 view": ("flying range", 30_000, 1),
     "flying pixels range scan 3 views": ("flying range", 30_000, 3),
+    "sparse 300": ("clean", 300, 0.0),
+    "sparse 600": ("clean", 600, 0.0),
+    "sparse 1k": ("clean", 1_000, 0.0),
+    "sparse 2k, noise 0.25%": ("noise", 2_000, 0.0025),
+    "sparse 5k, noise 0.25%": ("noise", 5_000, 0.0025),
 }
 # The virtual range scanner (make_cloud's "range" kind): a pinhole camera of this field of view and
 # pixel count looking at the shape's centre from RANGE_DISTANCE diagonals away; hits whose surface
@@ -98,7 +104,8 @@ ORIENT_TIMEOUT = 120
 ORIENT_NEIGHBOURS = 30
 PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views",
                        "dense range scan 1 view", "noisy range scan 1 view", "noisy range scan 3 views",
-                       "misaligned range scan 3 views", "flying pixels range scan 3 views")
+                       "misaligned range scan 3 views", "flying pixels range scan 3 views", "sparse 600",
+                       "sparse 2k, noise 0.25%")
 
 
 def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:

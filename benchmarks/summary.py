@@ -335,6 +335,21 @@ points: CD / NC / F1 509.2 / 0.769 / 0.144 from 1 view (alpha wrap 444.1) and 63
 from 3 (rerun: `--sheet-support inf` is the rule off, not the rule before, which is at 3b3baec). The
 one shape it served, abc_00000008, lost: from 3 views CD 20.4 -> 152.9 (F1 0.260 -> 0.576), as from
 the other range tables' clean 3 views (142.5). 2.91x Open3D's pipeline summed.""",
+    "pointcloud_sparse": """\
+Sparse clouds, 300 to 5k points, the 12 benchmark meshes at grid "auto" (what `voro3d.reconstruct`
+chooses), all three methods in one run (2026-12-07, `--conditions "sparse 300" ... --grid auto
+--alpha-wrap`). VoroMesh has the lower CD and the higher NC and F1 than Open3D's pipeline in every
+condition (its normals' orientation fails on so few points: CD 30-720), the higher NC and F1 than
+`alpha_wrap_3` in every condition, but not always its CD: 300 / 600 points 93.0 / 53.9 against 80.5 /
+39.9, and 5k points at 0.25% noise 4.5 against 3.2 (alpha wrap's NC 0.53-0.89 against our 0.81-0.93:
+a crust of facets at the points). abc_00000005 at 300 points is refused ("the reconstructed surface lies 1.1 voxels from the
+median point"). Until the same day the noise was read about a plane through 9 neighbours, which
+curvature alone moves off the points of a sparse cloud: clean clouds of 300 / 600 / 1k points read as
+noisy and were smoothed (12 / 9 / 3 of 12; now 4 / 1 / 1), CD 172.9 / 69.2 / 30.5 -> 93.0 / 53.9 / 25.8
+on the clouds both return, F1 0.105 / 0.224 / 0.396 -> 0.236 / 0.340 / 0.460 (rerun: the previous
+commit); and abc_00000005 at 1k points was refused as filling a volume, as a clean 2,500-point tile
+(2 x 2 x 0.2) was: points in a volume read as noisy at any count (0.31-0.32 spacings), a clean
+surface does not, and the refusal now asks for it.""",
     "pointcloud_scanner_artifacts": """\
 Two faults of merged real scans, on the 12 benchmark meshes, all three methods in one run (2026-12-07,
 `--conditions "misaligned range scan 3 views" ... --alpha-wrap`). *Misaligned*: each view moved by its

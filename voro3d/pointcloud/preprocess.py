@@ -125,9 +125,9 @@ class CloudStats:
         (a clean curved surface reads as a small noise, a fraction of the spacing); with normals,
         of the neighbours whose normal agrees in sign with the point's.
     fine_noise : float
-        The same over ``SPACING_NEIGHBOURS`` neighbours, where curvature and sharp edges barely
-        count: it tells a noisy cloud from a sparse clean one (clean dev clouds, 5k-100k
-        points: under 0.075 spacings; 0.25-1% noise: 0.2-0.31).
+        The same over ``SPACING_NEIGHBOURS`` neighbours, about a quadric instead of a plane, so
+        that curvature does not count, and sharp edges barely: it tells a noisy cloud from a
+        sparse clean one (measured beside ``NOISY``).
     walls : (n,) bool
         Points whose neighbourhood spans both sides of a wall a few spacings thick
         (:func:`wall_points`); their noise is read over their ``SPACING_NEIGHBOURS`` nearest. None
@@ -174,10 +174,10 @@ def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTIC
     noise, fine_noise = [], []
     for _, _, found in knn_blocks(tree, k + 1, sample=sample):
         side = None if normals is None else np.einsum("nkj,nj->nk", normals[found], normals[found[:, 0]]) > 0
-        fine = _plane_residuals(points[found[:, :near + 1]], None if side is None else side[:, :near + 1])
+        nearest, near_side = points[found[:, :near + 1]], None if side is None else side[:, :near + 1]
         wide = _plane_residuals(points[found], side)
-        noise.append(wide if walls is None else np.where(walls[found[:, 0]], fine, wide))
-        fine_noise.append(fine)
+        noise.append(wide if walls is None else np.where(walls[found[:, 0]], _plane_residuals(nearest, near_side), wide))
+        fine_noise.append(_quadric_residuals(nearest, near_side))
     return CloudStats(spacing=spacing, median_spacing=float(np.median(spacing)), noise=_median_residual(noise),
                       fine_noise=_median_residual(fine_noise), walls=walls)
 
@@ -273,6 +273,27 @@ def _centred_covariance(neighbourhoods: np.ndarray) -> tuple[np.ndarray, np.ndar
     """(n, k, 3) neighbourhoods -> their points about their centroid (n, k, 3) and covariance (n, 3, 3)."""
     local = neighbourhoods - neighbourhoods.mean(axis=1, keepdims=True)
     return local, np.einsum("nki,nkj->nij", local, local) / neighbourhoods.shape[1]
+
+
+def _quadric_residuals(neighbourhoods: np.ndarray, members: np.ndarray | None = None) -> np.ndarray:
+    """(n,) squared RMS distance of (n, k, 3) neighbourhoods to their best-fit quadric height field over
+    their plane, on :func:`_plane_residuals`' scale for pure noise (times (k - 3) / (k - 6), the
+    degrees of freedom): what is left is noise, not curvature. Only over the (n, k) bool ``members``
+    of each when given; a neighbourhood with fewer than 8 members reads its plane residual."""
+    weight = np.ones(neighbourhoods.shape[:2]) if members is None else members.astype(np.float64)
+    count = weight.sum(axis=1)
+    local = neighbourhoods - np.einsum("nk,nki->ni", weight / count[:, None], neighbourhoods)[:, None, :]
+    covariance = np.einsum("nk,nki,nkj->nij", weight, local, local) / count[:, None, None]
+    value, frame = np.linalg.eigh(covariance)
+    # In the plane's frame, scaled by the neighbourhood's extent so that the 6x6 systems are well conditioned.
+    scale = np.sqrt(np.maximum(value[:, 2], 1e-300))[:, None]
+    height, u, v = (np.einsum("nki,ni->nk", local, frame[:, :, axis]) / scale for axis in range(3))
+    terms = np.stack([u * u, u * v, v * v, u, v, np.ones_like(u)], axis=-1)
+    normal = np.einsum("nk,nki,nkj->nij", weight, terms, terms) + 1e-9 * np.eye(6)
+    coefficients = np.linalg.solve(normal, np.einsum("nk,nki,nk->ni", weight, terms, height)[..., None])[..., 0]
+    misfit = height - np.einsum("nki,ni->nk", terms, coefficients)
+    squared = (weight * misfit**2).sum(axis=1) * scale[:, 0] ** 2 / np.maximum(count - 6.0, 1.0) * (count - 3.0) / count
+    return np.where(count >= 8, squared, value[:, 0])
 
 
 def _median_residual(blocks: list) -> float:

@@ -25,11 +25,10 @@ MAX_TRUSTED_OUTLIERS = 0.01
 # shapes at 0.25-1% noise read 0.64-0.98).
 MIN_NORMAL_AGREEMENT = 0.6
 # Given normals whose signs disagree between this share of neighbours on one sheet
-# (:func:`~voro3d.pointcloud.normals.sign_disagreement`) are re-oriented by our orienter. 30k points
-# of each of the 38 dev meshes: their true normals read 0-0.0045 (0-0.029 with 0.5% noise), but for
-# abc_00000001 (0.18: its triangles are not consistently oriented); random signs 0.50; Open3D's
-# estimate_normals() on the noisy clouds, as a user runs it, 0.156-0.364; our own orientation of those
-# clouds 0-0.076.
+# (:func:`~voro3d.pointcloud.normals.sign_disagreement`) are re-oriented by our orienter. 30k points of each of
+# the 38 dev meshes: their true normals read 0-0.0045 (0-0.029 with 0.5% noise), but for abc_00000001 (0.18: its
+# triangles are not consistently oriented); random signs 0.50; Open3D's estimate_normals() on the noisy clouds,
+# as a user runs it, 0.156-0.364; our own orientation of those clouds 0-0.076.
 MAX_SIGN_DISAGREEMENT = 0.1
 # Graph edges that tie smooth patches into parts in the orientation (normals._part_flips): those
 # whose Hoppe weight (1 - |n_i.n_j| + |d.n_i| + |d.n_j|) is under this, i.e. that stay closer to
@@ -55,8 +54,11 @@ MAX_TIE_WEIGHT = 1.0
 # and 31.1); on the whole plate from 1 view 1.11 / 1.10 / 2.03, the object held above it 0.73 / 0.73
 # / 1.64 (before the parts 12.9); the rest within 0.1.
 UNDECIDED_SIGMAS = 3.0
-# Fine-scale noise above this share of the spacing turns on the smoothing pass (plan denoise "auto"):
-# clean dev clouds read under 0.075, 0.25% noise and more at least 0.19.
+# Fine-scale noise (about a quadric through 9 neighbours: curvature is not noise) over this share of the spacing turns
+# on the smoothing (plan denoise "auto"). 12 benchmark meshes x 17 conditions: clean ones 0-0.083, 0.25-1% noise and
+# noisy range scans 0.168-0.331. About a plane (until 2026-12-07) clean sparse clouds read noisy (pointcloud_sparse: smoothed
+# 12 / 9 / 3 of 12 at 300 / 600 / 1k points, now 4 / 1 / 1; CD 172.9 -> 93.0, 69.2 -> 53.9, 30.5 -> 25.8, F1 +0.06-0.13),
+# and thingi32_252119's clean 5k (0.169; CD 15.9 -> 17.5, NC 0.758 -> 0.791, F1 0.396 -> 0.611).
 NOISY = 0.13
 # Noise over this many cells of the Poisson octree (2 / 2^depth in the fit frame; four dev shapes,
 # 20k points: 0.61-0.66 at 0.25% of the diagonal, 1.06-1.09 at 0.5%, 1.46-1.59 at 1%) leaves bumps
@@ -178,8 +180,7 @@ CLOSED_LEVEL = 0.25
 # that ballooned; at 0.5 limbs seen from one side are cut: armadillo 4.2 -> 16.6). On 8 dev meshes outside the
 # benchmark (abc_00000003, screwdriver, camel_b, fertility, cheburashka, thingi32_44234 / 96481, decimated-max; 3 take
 # IMLS), own level against 0.42: 69.2 / 0.899 / 0.677 -> 33.8 / 0.903 / 0.686 (thingi32_96481 269 -> 41). Rerun:
-# bench_pointcloud.py --conditions "range scan 3 views" --no-poisson --hole-level 0 (--shapes ... for the other
-# meshes).
+# bench_pointcloud.py --conditions "range scan 3 views" --no-poisson --hole-level 0 (--shapes ... for the others).
 HOLE_LEVEL = 0.42
 # The IMLS target of an open cloud (winding level under CLOSED_LEVEL) left uncut by the hull (plan hull "off") reaches
 # no further than this from the points, but where they enclose it (target_surface's depth): behind a one-sided scan
@@ -216,8 +217,7 @@ THINNEST_SHELL_NODES = 4.0
 # 0.8953 / 0.8955 / 0.8958 / 0.8966. At 1.5 / 3: pointcloud_range_more's 16 from 1 view CD 442.9 / 446.7, NC
 # 0.7614 / 0.7638, from 3 views 69.1 / 68.9, NC 0.9173 both; objects on a table (bench_scenes.py) from 1 view
 # 134.5 / 132.5, NC 0.816 / 0.820, F1 0.330 / 0.334, from 3 views 84.7 / 83.5, 0.903 / 0.904, 0.459 / 0.464.
-# Rerun: bench_pointcloud.py --no-poisson --conditions "range scan 1 view" "range scan 3 views"; bench_scenes.py
-# --no-poisson.
+# Rerun, both with --no-poisson: bench_pointcloud.py --conditions "range scan 1 view" "range scan 3 views"; bench_scenes.py.
 # Not kept (2026-12-06), with this rounding: the IMLS band (surface.IMLS_BAND) giving way to the far field over
 # its last 1 / 2 kernel widths, so that past the rim of a seen patch (a scan's silhouette) the band's edge, a
 # union of balls, shows no crust. 12 meshes from 1 view CD 210.3 -> 211.3 / 211.9, NC 0.7381 -> 0.7460 / 0.7490;
