@@ -355,9 +355,10 @@ Two faults of merged real scans, on the 12 benchmark meshes, all three methods i
 `--conditions "misaligned range scan 3 views" ... --alpha-wrap`). *Misaligned*: each view moved by its
 own small rigid motion, as registration leaves merged scans (a turn of N(0, 0.3) degrees, a shift of
 N(0, 0.2%) of the diagonal per axis): VoroMesh has the lower CD and the higher NC and F1 than both
-Open3D's pipeline and `alpha_wrap_3` from 3 and from 6 views (CD 41.3 / 1.93 against 555.5 / 18.0 and
+Open3D's pipeline and `alpha_wrap_3` from 3 and from 6 views (CD 40.3 / 1.93 against 555.5 / 18.0 and
 69.5 / 3.79), every output closed and in one piece; the doubled layers leave striped patches where
-views overlap at a slant (fandisk's arch, in the picture). *Flying pixels*: half the pixels beside a
+views overlap at a slant (fandisk's arch, in the picture). thingi32_252119's 3-view row rerun after the
+noise reading's change (it flipped to clean: CD 25.8 -> 13.5). *Flying pixels*: half the pixels beside a
 depth edge return a depth up to 10% of the diagonal behind it, as a time-of-flight camera's mixed
 pixels do unless its driver filters them. VoroMesh keeps the lower CD and the higher NC against
 Open3D's pipeline (1 view 189.1 against 1839.4, 3 views 148.3 against 428.6) and against alpha wrap from
@@ -460,7 +461,9 @@ grid auto: 32-48 for these clouds; at grid 64 the lid reads 4.64 / 2.57). With
 the true normals given, the noise and the points' areas count only the neighbours on each point's
 own side, and every count matches Poisson on those normals (CD 4.25 / 1.43 / 1.33 and 4.29 / 1.05
 / 0.86 against 4.2 / 1.4 / 1.3 and 3.8 / 1.04 / 0.86; Open3D's Poisson runs on all cores and moves by
-about 0.02 from run to run).""",
+about 0.02 from run to run). Rerun 2026-12-07, with the noise read about a quadric: the lid at 20k
+points no longer reads as noisy nor is smoothed, CD 5.08 -> 4.98 (F1 0.394 -> 0.401); the other
+rows within 3%.""",
     "fit_speed": """\
 `benchmarks/bench_fit_speed.py` times the whole fit against another checkout, interleaved: on a
 quiet 2-core CPU 0.79 / 3.57 s per dev mesh at 32³ / 64³ on average, 18.7 s for the bunny at 128³
