@@ -350,7 +350,7 @@ def _colour_error(mesh, source, low, high):
 
 
 def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=True, with_alpha_wrap=False,
-                  pictured=PICTURED):
+                  pictured=PICTURED, prefilter=False):
     from voro3d.io import mesh_arrays, save_mesh
     from voro3d.metrics import evaluate
     from voro3d.pointcloud import cloud_mesh, colored_mesh, reconstruct_points
@@ -364,11 +364,17 @@ def run_condition(source, name, condition, grid, picture_dir, *, with_poisson=Tr
     row = dict(shape=name, condition=condition, points=len(points))
     start = time.perf_counter()
     try:
-        shape, target, info = reconstruct_points(points, grid=grid, progress=False)
+        kept = slice(None)
+        if prefilter:  # what a user runs first on scans with flying pixels (README); the baselines get the cloud as it is
+            import open3d as o3d
+
+            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+            kept = np.asarray(cloud.remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)[1], np.int64)
+        shape, target, info = reconstruct_points(points[kept], grid=grid, progress=False)
         mesh = cloud_mesh(shape, target)
-        _check_fit(mesh, points, info.voxel, info.offset)  # what reconstruct refuses is an error here too
+        _check_fit(mesh, points[kept], info.voxel, info.offset)  # what reconstruct refuses is an error here too
         if colours is not None:
-            mesh = colored_mesh(mesh, points, colours)
+            mesh = colored_mesh(mesh, points[kept], colours[kept])
         seconds = time.perf_counter() - start
         report = check_watertight(mesh)
         row["voromesh"] = dict(evaluate(mesh, source), seconds=seconds, split=info.seconds, grid=info.grid,
@@ -694,6 +700,8 @@ def main():
     parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
     parser.add_argument("--sheet-support", type=float, help="SHEET_SUPPORT for this run (inf: no such rule), the "
                         "ablation beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--prefilter", action="store_true", help="Open3D's statistical outlier removal (20 neighbours, "
+                        "2 deviations) on each cloud before VoroMesh, as the README advises for flying pixels")
     parser.add_argument("--pictured", nargs="+", default=list(PICTURED), help="shapes whose meshes the picture shows")
     parser.add_argument("--out", type=Path, default=RESULTS / "pointcloud")
     parser.add_argument("--merge", type=Path, nargs="+", help="join the rows of these JSON results instead of running "
@@ -738,7 +746,8 @@ def main():
                 poisson_escape=args.poisson_escape or "default",
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
                 sheet_support="default" if args.sheet_support is None else args.sheet_support,
-                orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured)
+                orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured,
+                prefilter=args.prefilter)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]
@@ -747,7 +756,7 @@ def main():
         source = load_mesh(path)
         for condition in args.conditions:
             row = run_condition(source, path.name, condition, grid, picture_dir, with_poisson=not args.no_poisson,
-                                with_alpha_wrap=args.alpha_wrap, pictured=args.pictured)
+                                with_alpha_wrap=args.alpha_wrap, pictured=args.pictured, prefilter=args.prefilter)
             rows.append(row)
             print(json.dumps({k: row[k] for k in ("shape", "condition")} |
                              {m: {k: row[m].get(k) for k in ("chamfer_x1e5", "nc", "f1", "pieces", "watertight",

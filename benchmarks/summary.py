@@ -371,6 +371,14 @@ the rescue keeps them. Poisson and the IMLS closure then grow fins and blocks
 along them (thingi32_75655 from 3 views CD 911.3 against alpha wrap's 35.4; the cow's fins under its
 belly and one 2% piece of them apart, the one output in two pieces). Telling them apart needs the
 views' positions, which the points do not carry. 2.20x Open3D's pipeline summed.""",
+    "pointcloud_prefilter": """\
+What the README advises for flying pixels, measured: Open3D's statistical outlier removal (20
+neighbours, 2 deviations) on each cloud before VoroMesh (`bench_pointcloud.py --prefilter
+--no-poisson`, the 12 benchmark meshes, 2026-12-07). Flying pixels from 3 views CD / NC / F1 148.3 /
+0.881 / 0.635 -> 36.7 / 0.908 / 0.682 (alpha wrap on the raw clouds 65.6; `pointcloud_scanner_artifacts`),
+from 1 view 189.1 / 0.774 / 0.329 -> 191.6 / 0.797 / 0.396; clean 3-view range scans 39.2 / 0.916 /
+0.695 -> 53.9 / 0.902 / 0.644 (`pointcloud_range`), one output in two pieces: the filter also takes
+the sparse points at grazing edges, so `reconstruct` does not run it by itself.""",
     "pointcloud_noisy_range_rest": """\
 The noisy range conditions on the other 26 dev meshes (with `pointcloud_noisy_range`, all 38), all
 three methods in one run (2026-12-07). Against Open3D's pipeline VoroMesh has the lower CD and the
