@@ -24,8 +24,9 @@ the points define (``voro3d/pointcloud/``):
    sparsely: a scanned sphere 100× denser in places keeps its sparse side); and clumps holding
    under 1% of the points whose boxes lie apart from the rest. Then the local spacing and the noise level
    (median RMS distance of 24 neighbours to their plane) are measured. A cloud that fills a
-   volume (local dimension above 2.45 *and* points × spacing³ over 0.5 of the box volume;
-   sampled surfaces read about 2 and under 0.25) is refused: it has no surface.
+   volume (local dimension above 2.45, points × spacing³ over 0.5 of the box volume, *and* noisy
+   as in 3: points in a volume have no plane at the spacing's scale; sampled surfaces read about 2
+   and under 0.25, though a clean sparse slab reads like a volume on those two) is refused.
    Repeated points (merged scans) are merged first, their normals and colours averaged; objects
    far apart (pieces of the neighbour graph whose boxes, grown by half their diagonal, do not
    overlap) are reconstructed one by one, each at its own grid (``separate_objects``: two unit
@@ -49,11 +50,12 @@ the points define (``voro3d/pointcloud/``):
 3. **Target surface**. First the side of the points: their generalized winding number (Barill
    et al. 2018) just behind and in front of them reads about 0.5 for a cloud that encloses a
    volume, about 0 for an open, one-sided scan. When the noise exceeds 0.13 of the spacing
-   (measured over 8 neighbours, where curvature barely counts), robust IMLS (Kolluri 2008 with
-   RIMLS residual weights, Öztireli et al. 2009) first smooths their normals (a pass over the
-   normals alone, then one that moves the points onto their smooth surface; moving the points
-   twice shrinks curved parts; the normals' pass is left out where the neighbours' normals mostly
-   cancel, the two sides of a wall thinner than the noise) (``plan.denoise``: ``"on"``/``"off"`` force it).
+   (measured over 8 neighbours about a quadric, so that curvature does not count), robust IMLS
+   (Kolluri 2008 with RIMLS residual weights, Öztireli et al. 2009) first smooths their normals (a
+   pass over the normals alone, then one that moves the points onto their smooth surface; moving
+   the points twice shrinks curved parts; the normals' pass is left out where the neighbours'
+   normals mostly cancel, the two sides of a wall thinner than the noise) (``plan.denoise``:
+   ``"on"``/``"off"`` force it).
    - *Closed clouds* (``poisson.py``): Open3D's screened Poisson (Kazhdan & Hoppe 2013) of the
      oriented points, at an octree depth four times finer than the grid. One indicator function
      over the whole box averages noise over many points and caps holes smoothly; with our
