@@ -176,7 +176,10 @@ def cloud_stats(points: np.ndarray, *, tree=None, sample: int | None = STATISTIC
         side = None if normals is None else np.einsum("nkj,nj->nk", normals[found], normals[found[:, 0]]) > 0
         nearest, near_side = points[found[:, :near + 1]], None if side is None else side[:, :near + 1]
         wide = _plane_residuals(points[found], side)
-        noise.append(wide if walls is None else np.where(walls[found[:, 0]], _plane_residuals(nearest, near_side), wide))
+        if walls is not None:  # (normals not given) wall points read their noise over their nearest alone
+            wall = walls[found[:, 0]]
+            wide[wall] = _plane_residuals(nearest[wall])
+        noise.append(wide)
         fine_noise.append(_quadric_residuals(nearest, near_side))
     return CloudStats(spacing=spacing, median_spacing=float(np.median(spacing)), noise=_median_residual(noise),
                       fine_noise=_median_residual(fine_noise), walls=walls)
