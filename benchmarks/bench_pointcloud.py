@@ -200,7 +200,7 @@ def _depth_edges(distance, pixels, gap: float) -> np.ndarray:
     """(w h,) bool: the hit pixels of a row-major depth image (``distance``, inf where missed) with a
     4-neighbour that missed or lies over ``gap`` away."""
     width, height = pixels
-    image = np.where(np.isfinite(distance), distance, np.inf).reshape(height, width)
+    image = distance.reshape(height, width)
     padded = np.pad(image, 1, constant_values=np.inf)
     edge = np.zeros((height, width), bool)
     for rows, columns in ((slice(1, -1), slice(2, None)), (slice(1, -1), slice(None, -2)),
