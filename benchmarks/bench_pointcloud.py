@@ -698,6 +698,8 @@ def main():
     parser.add_argument("--poisson-escape", help="MAX_POISSON_ESCAPE for this run (share of the diagonal, or none: "
                         "never refused), the ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--dense-spacings", type=float, help="DENSE_SPACINGS for this run, the ablation beside it")
+    parser.add_argument("--auto-width", type=float, help="AUTO_SPACINGS_PER_VOXEL for this run (with --grid auto), the "
+                        "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--sheet-support", type=float, help="SHEET_SUPPORT for this run (inf: no such rule), the "
                         "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--prefilter", action="store_true", help="Open3D's statistical outlier removal (20 neighbours, "
@@ -715,6 +717,7 @@ def main():
         return
     import voro3d.pointcloud.plan as plan_module
     import voro3d.pointcloud.reconstruct as reconstruct_module
+    import voro3d.pointcloud.resolution as resolution_module
     import voro3d.pointcloud.surface as surface_module
     import voro3d.pointcloud.targets as targets_module
 
@@ -732,6 +735,8 @@ def main():
         reconstruct_module.DENSE_SPACINGS = args.dense_spacings
     if args.sheet_support is not None:
         plan_module.SHEET_SUPPORT = args.sheet_support
+    if args.auto_width is not None:
+        resolution_module.AUTO_SPACINGS_PER_VOXEL = args.auto_width
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -746,6 +751,7 @@ def main():
                 poisson_escape=args.poisson_escape or "default",
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
                 sheet_support="default" if args.sheet_support is None else args.sheet_support,
+                auto_width="default" if args.auto_width is None else args.auto_width,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured,
                 prefilter=args.prefilter)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)

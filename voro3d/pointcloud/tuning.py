@@ -30,29 +30,26 @@ MIN_NORMAL_AGREEMENT = 0.6
 # triangles are not consistently oriented); random signs 0.50; Open3D's estimate_normals() on the noisy clouds,
 # as a user runs it, 0.156-0.364; our own orientation of those clouds 0-0.076.
 MAX_SIGN_DISAGREEMENT = 0.1
-# Graph edges that tie smooth patches into parts in the orientation (normals._part_flips): those
-# whose Hoppe weight (1 - |n_i.n_j| + |d.n_i| + |d.n_j|) is under this, i.e. that stay closer to
-# the surface than a right-angle turn; edges across a thin wall would tie its two sides as one.
-# Wrongly signed normals (mean %) against the meshes' own, 38 dev meshes, our estimate (the
-# benchmark range scanner, 30k points), 2026-12-05. Kinds: objects alone from 1 / 3 / 6 views,
-# 5k clean points, 20k at 0.5% noise; on bench_scenes' plate from 1 / 3 views; on it cropped to
-# 0.85 of its half-width (its edge out of the frame), from 1 / 3 views. Each piece of the graph
-# flipped on its curvature sum (the rule before the parts): 1.20 / 0.72 / 1.31, 5.38, 4.90; 18.1 /
-# 8.49; 22.9 / 16.7. Parts with every edge a tie: 1.11 / 1.28 / 1.77, 5.48, 4.43; 1.12 / 3.02; 22.7
-# / 17.4 (the cup abc_00000009 from 3 views 0 -> 21%: its inside tied to its outside across the
-# wall). Under 0.5: 1.14 / 0.76 / 1.12, 5.20, 6.09; 1.18 / 0.74; 7.8 / 8.9. Under 1.0: 1.11 / 0.72 /
-# 1.31, 5.39, 4.52; 1.10 / 0.70; 11.0 / 7.7. Under 1.5: 1.11 / 0.72 / 1.49, 5.39, 4.44; 1.12 / 0.70;
-# 12.6 / 5.7. The orientation tree's own edges as ties as well (it joins the table to the object
-# through their coin-toss relation): on the cropped plate 18.2 / 13.6, the rest the same.
+# Graph edges that tie smooth patches into parts in the orientation (normals._part_flips): those whose Hoppe weight (1 -
+# |n_i.n_j| + |d.n_i| + |d.n_j|) is under this, i.e. that stay closer to the surface than a right-angle turn; edges
+# across a thin wall would tie its two sides as one. Wrongly signed normals (mean %) against the meshes' own, 38 dev
+# meshes, our estimate (the benchmark range scanner, 30k points), 2026-12-05. Kinds: objects alone from 1 / 3 / 6 views,
+# 5k clean points, 20k at 0.5% noise; on bench_scenes' plate from 1 / 3 views; on it cropped to 0.85 of its half-width
+# (its edge out of the frame), from 1 / 3 views. Each piece of the graph flipped on its curvature sum (the rule before
+# the parts): 1.20 / 0.72 / 1.31, 5.38, 4.90; 18.1 / 8.49; 22.9 / 16.7. Parts with every edge a tie: 1.11 / 1.28 / 1.77,
+# 5.48, 4.43; 1.12 / 3.02; 22.7 / 17.4 (the cup abc_00000009 from 3 views 0 -> 21%: its inside tied to its outside
+# across the wall). Under 0.5: 1.14 / 0.76 / 1.12, 5.20, 6.09; 1.18 / 0.74; 7.8 / 8.9. Under 1.0: 1.11 / 0.72 / 1.31,
+# 5.39, 4.52; 1.10 / 0.70; 11.0 / 7.7. Under 1.5: 1.11 / 0.72 / 1.49, 5.39, 4.44; 1.12 / 0.70; 12.6 / 5.7. The
+# orientation tree's own edges as ties as well (it joins the table to the object through their coin-toss relation): on
+# the cropped plate 18.2 / 13.6, the rest the same.
 MAX_TIE_WEIGHT = 1.0
-# A part of the orientation whose curvature sum is within this many of its own spread (the root of
-# its sum of squares: what random signs would give) has no outward side of its own, and faces the
-# rest of the cloud (a table whose edge is out of view faces what stands on it). Wrongly signed
-# normals as above (mean %), 0 / 3 / 10 sigmas: on the cropped plate 21.2 / 11.0 / 10.4 from 1 view,
-# 16.3 / 7.7 / 7.0 from 3; the object held 3% of its diagonal above the cropped plate (apart, as a
-# ball's point contact scans) 29.2 / 2.5 / 3.1 and 23.8 / 2.2 / 0.6 (the rule before the parts: 24.0
-# and 31.1); on the whole plate from 1 view 1.11 / 1.10 / 2.03, the object held above it 0.73 / 0.73
-# / 1.64 (before the parts 12.9); the rest within 0.1.
+# A part of the orientation whose curvature sum is within this many of its own spread (the root of its sum of squares:
+# what random signs would give) has no outward side of its own, and faces the rest of the cloud (a table whose edge is
+# out of view faces what stands on it). Wrongly signed normals as above (mean %), 0 / 3 / 10 sigmas: on the cropped
+# plate 21.2 / 11.0 / 10.4 from 1 view, 16.3 / 7.7 / 7.0 from 3; the object held 3% of its diagonal above the cropped
+# plate (apart, as a ball's point contact scans) 29.2 / 2.5 / 3.1 and 23.8 / 2.2 / 0.6 (the rule before the parts: 24.0
+# and 31.1); on the whole plate from 1 view 1.11 / 1.10 / 2.03, the object held above it 0.73 / 0.73 / 1.64 (before the
+# parts 12.9); the rest within 0.1.
 UNDECIDED_SIGMAS = 3.0
 # Fine-scale noise (about a quadric through 9 neighbours: curvature is not noise) over this share of the spacing turns
 # on the smoothing (plan denoise "auto"). 12 benchmark meshes x 17 conditions: clean ones 0-0.083, 0.25-1% noise and
@@ -68,11 +65,14 @@ NOISY = 0.13
 # +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 4-10% on three, hence the gate.
 HEAVY_NOISE = 0.85
 FILTER_WIDTH_PER_NOISE = 2.0
-# grid="auto": the finest voxels about this many median spacings wide, within these bounds. The top
-# at 10^6 true-normal points (bench_large's clouds, reconstruct in its own process), 128 against 256:
-# armadillo CD 0.463 / 0.460, NC 0.978 / 0.983, 36 / 49 s (192: 0.460, 0.981, 44 s); bunny CD 0.589 /
-# 0.589, NC 0.989 / 0.991, 38 / 49 s; the CAD parts, flat where they are not sharp, lose at 256:
-# fandisk CD 0.664 / 0.668, abc_00000005 0.629 / 0.633 (Poisson depth 9: 0.667, 0.632), 29-34 / 32-35 s.
+# grid="auto": the finest voxels about this many median spacings wide, within these bounds. The top at 10^6 true-normal
+# points (bench_large's clouds, reconstruct in its own process), 128 against 256: armadillo CD 0.463 / 0.460, NC 0.978 /
+# 0.983, 36 / 49 s (192: 0.460, 0.981, 44 s); bunny CD 0.589 / 0.589, NC 0.989 / 0.991, 38 / 49 s; the CAD parts, flat
+# where they are not sharp, lose at 256: fandisk CD 0.664 / 0.668, abc_00000005 0.629 / 0.633 (Poisson depth 9: 0.667,
+# 0.632), 29-34 / 32-35 s. The width: 12 benchmark meshes, no normals (2026-12-07), 2.5 / 2.0 / 1.5 spacings, mean CD
+# clean 5k 2.61 / 2.56 / 2.54, clean 20k 0.64 / 0.63 / 0.63, 5k at 0.25% noise 4.46 / 4.31 / 3.76 (the cow's legs: 10.4
+# / 9.1 / 2.7), 3-view scans 39.2 / 39.1 / 39.2, NC at most +0.0045, F1 within 0.006; faces 1.2-1.6x / 1.6-2.3x, seconds
+# up to 1.15x / 1.5x; 1k-2k: grid 32. Rerun: bench_pointcloud.py --grid auto --no-poisson --auto-width 2.0.
 AUTO_SPACINGS_PER_VOXEL = 2.5
 AUTO_GRID_RANGE = (32, 128)
 # grid="auto" fits an adaptive band (voro3d.generators.AdaptiveBand) from the finest grid up to
@@ -242,10 +242,11 @@ MAX_BRIDGE_GAP = 0.25
 # over the 38 from 3 views 55.5 -> 537.8, NC 0.889 -> 0.868, F1 0.644 -> 0.593 (fandisk 44 -> 4406, bunny 11 -> 2045,
 # cheburashka 16 -> 3753; the lid abc_00000007 alone gains, 357 -> 5.0); 6 views 2.6 -> 2.7 (the lid's shell 2.27,
 # Poisson 8.26); a third missing 345.9 -> 338.9, NC 0.8865 -> 0.8915 (thingi32_75665 355 -> 82; bumpy-cube 105 -> 112,
-# NC 0.81 -> 0.93). Choosing instead the target nearer the points both ways (sheet_if_closer's misfit, Poisson's
-# surface cut to the fit cube) would keep IMLS on all 15 of the 3-view scans measured, the lid included (45.8 spacings
-# against 9.2: its flaps stay inside the cube). Rerun: bench_pointcloud.py --no-poisson --poisson-escape none
-# --conditions "range scan 3 views" ...
+# NC 0.81 -> 0.93). Judged after the sightline carve instead (2026-12-07: those 38 from 3 / 6 views and a third missing,
+# the 12 benchmark meshes' other range and clean 5k / 1% noise clouds), 4 decisions change: the lid from 3 views (flap
+# 32% -> 4.5% out) CD 392.8 -> 3.4, but spikes under decimated-knight 7.7 -> 39.9, thingi32_90889 20.3 -> 74.9 and the
+# misaligned armadillo 7.5 -> 27.6 (NC -0.05 to -0.08); nor does either target's misfit both ways tell them apart.
+# Rerun: bench_pointcloud.py --no-poisson --poisson-escape none --conditions "range scan 3 views" ...
 MAX_POISSON_ESCAPE = 0.08
 # With plan hull "on", a target's solid more than this many nodes of its grid (a VoroMesh voxel at FIELD_REFINEMENT 2)
 # outside the points' convex hull is cut away (voro3d.pointcloud.hull); "auto" cuts an open cloud's (level under
@@ -396,12 +397,11 @@ CLOUD_STEPS = 120
 # s a cloud longer. bench_edges 0.358 -> 0.359; with 100 main steps the same CD, 0.13 s less, edge F-score 0.353.
 # Rerun: bench_pointcloud.py --no-poisson, bench_edges.py, with the constant set.
 CLOUD_BOUNDARY_STEPS = 40
-# VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh
-# is fitted to the target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view
-# range scans at grid 64, 75 against 150 (benchmarks/results/cloud_samples.md): CD +0.1% to +0.4%
-# on average per condition (-2.3% on the scans), +4.2% at worst (a 3-view scan; +2.2% on the rest),
-# NC at worst -0.0008 on average, F1 within 0.0005; samples and fit 0.56-0.64x, the call 0.83-0.87x
-# the time. At 40: CD +0.5%, +3.2% at worst, NC -0.0019 on clean 100k, for 0.4x the fit.
+# VoroLoss samples of a cloud's fit per grid face (a mesh's stay 150, the official code's): its mesh is fitted to the
+# target afterwards. 6 dev meshes x clean 20k / 0.5% noise / clean 100k / 3-view range scans at grid 64, 75 against 150
+# (benchmarks/results/cloud_samples.md): CD +0.1% to +0.4% on average per condition (-2.3% on the scans), +4.2% at worst
+# (a 3-view scan; +2.2% on the rest), NC at worst -0.0008 on average, F1 within 0.0005; samples and fit 0.56-0.64x, the
+# call 0.83-0.87x the time. At 40: CD +0.5%, +3.2% at worst, NC -0.0019 on clean 100k, for 0.4x the fit.
 CLOUD_SAMPLES_PER_FACE = 75
 # kNN candidates of a cloud's fit searched again after a generator moved this many voxels (a mesh's
 # fit keeps fitting.REFRESH_VOXELS, 1.5; both at most fitting.MAX_REFRESH_DISTANCE, 2.5 voxels at 64^3).
