@@ -1148,6 +1148,25 @@ def test_orientation_weights_in_blocks_give_the_same_normals(sphere_cloud, monke
     assert np.mean(np.einsum("ij,ij->i", whole, normals) > 0) > 0.99
 
 
+def test_a_large_cloud_is_oriented_on_a_subset_and_the_rest_follow(monkeypatch):
+    import trimesh
+
+    import voro3d.pointcloud.normals as normals_module
+    from voro3d.pointcloud import orient_normals
+
+    # A slab 5 spacings thick: the subset, 4 times sparser, is under 3 of its spacings thick, so a
+    # point's nearest subset points include the far side's, whose plane passes far from it.
+    slab = trimesh.creation.box(extents=(2.0, 2.0, 0.1))
+    points, normals = sample_surface((np.asarray(slab.vertices), np.asarray(slab.faces)), 20_000, seed=4)
+    signs = np.where(np.random.default_rng(5).random(len(points)) < 0.5, -1.0, 1.0)[:, None]
+    whole = orient_normals(points, normals * signs)
+    monkeypatch.setattr(normals_module, "ORIENT_POINTS", 5_000)
+    carried = orient_normals(points, normals * signs)
+    assert np.mean(np.einsum("ij,ij->i", carried, normals) > 0) > 0.995
+    assert np.mean(np.einsum("ij,ij->i", carried, whole) > 0) > 0.995
+    assert np.array_equal(carried, orient_normals(points, normals * signs))
+
+
 def test_imls_does_not_depend_on_its_blocks(sphere_cloud):
     points, normals = sphere_cloud
     queries = np.random.default_rng(10).uniform(-1.2, 1.2, (3000, 3))
