@@ -421,13 +421,16 @@ def _oriented_from_subset(points, normals, k: int) -> np.ndarray:
     tangent plane passes nearest it."""
     from scipy.spatial import cKDTree
 
+    from ..queries import neighbour_table
+
     n = points.shape[0]
     chosen = np.arange(0, n, -(-n // ORIENT_POINTS))
-    tree = cKDTree(points[chosen])
-    oriented = orient_normals(points[chosen], normals[chosen], k=k)
+    subset = points[chosen]
+    tree = cKDTree(subset)  # one tree for the subset's graph and for the rest's nearest subset points
+    oriented = orient_normals(subset, normals[chosen], neighbours=neighbour_table(tree, min(k, len(chosen) - 1) + 1))
     _, near = tree.query(points, k=CARRY_CANDIDATES, workers=-1)
     candidates = oriented[near]
-    plane = np.abs(np.einsum("ijk,ijk->ij", points[:, None, :] - points[chosen][near], candidates))
+    plane = np.abs(np.einsum("ijk,ijk->ij", points[:, None, :] - subset[near], candidates))
     guide = candidates[np.arange(n), plane.argmin(axis=1)]
     result = np.array(normals, np.float64)
     result *= np.where(np.einsum("ij,ij->i", result, guide) < 0, -1.0, 1.0)[:, None]
