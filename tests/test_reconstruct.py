@@ -222,6 +222,24 @@ def test_repeated_points_are_merged(torus_cloud):
     assert np.allclose(np.asarray(once.vertices), np.asarray(repeated.vertices))
 
 
+def test_merge_duplicates_merges_copies_only():
+    """Points of a grid share every coordinate with others (a CAD face's samples) but repeat none:
+    nothing is merged; copies are, -0.0 and 0.0 alike, their attributes averaged."""
+    from voro3d.pointcloud.preprocess import merge_duplicates
+
+    grid = np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    assert merge_duplicates(grid)[0] is grid
+    copies = np.vstack([grid, [[-0.0, 1.0, 2.0]], grid[:3]])
+    values = np.arange(len(copies), dtype=np.float64)[:, None]
+    merged, averaged = merge_duplicates(copies, values)
+    assert np.array_equal(merged, grid)
+    expected = values[:len(grid), 0].copy()
+    expected[:3] = (expected[:3] + values[len(grid) + 1:, 0]) / 2
+    row = 1 * 5 + 2  # (0, 1, 2)
+    expected[row] = (expected[row] + values[len(grid), 0]) / 2
+    assert np.array_equal(averaged[:, 0], expected)
+
+
 def test_unusable_normals_are_repaired_up_to_half_and_past_it_estimated(torus_cloud):
     """Past half, our own estimate does as well as the repair (REPAIRABLE_SHARE): a cloud whose
     normals are mostly, or all, zero (some exporters write them so) is reconstructed, not refused."""

@@ -16,33 +16,31 @@ from .topology import welded_edge_counts
 
 __all__ = ["InsideOutside", "winding_number", "sdf_grid", "point_areas", "point_winding_number",
            "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "WINDING_THREADS", "FAST_WINDING_MARGIN", "KNN_BLOCK_ENTRIES",
-           "knn_blocks", "nearest_distance", "neighbour_table", "spatial_order"]
+           "knn_blocks", "query_order", "nearest_distance", "neighbour_table", "spatial_order"]
 
-# Ray directions of the inside test: mutually orthogonal and far from the axes and diagonals, so
-# rays from grid-aligned queries do not run along the edges of grid-aligned (CAD, voxel-derived)
-# meshes. Open3D's own ``compute_occupancy(nsamples=k)`` casts k rays within 0.001 of (1, 1, 1),
-# which fail together: 32 wrong nodes in the 64^3 grids of the dev meshes, none with these rays
-# plus the winding-number tie-break.
+# Ray directions of the inside test: mutually orthogonal and far from the axes and diagonals, so rays from
+# grid-aligned queries do not run along the edges of grid-aligned (CAD, voxel-derived) meshes. Open3D's own
+# ``compute_occupancy(nsamples=k)`` casts k rays within 0.001 of (1, 1, 1), which fail together: 32 wrong nodes in the
+# 64^3 grids of the dev meshes, none with these rays plus the winding-number tie-break.
 RAY_DIRECTIONS = np.array([
     [0.62920277, 0.68800303, -0.36160159],
     [-0.46501772, 0.7060269, 0.53412035],
     [0.62277761, -0.16789397, 0.76417253],
 ])
 
-# Query-triangle pairs per block in :func:`winding_number`; about ten float64 arrays of this many
-# entries are alive at once per thread, so 2**21 pairs and up to four threads peak near 0.7 GB.
+# Query-triangle pairs per block in :func:`winding_number`; about ten float64 arrays of this many entries are alive at
+# once per thread, so 2**21 pairs and up to four threads peak near 0.7 GB.
 WINDING_PAIRS_PER_BLOCK = 2**21
-# Threads of :func:`winding_number`: the CPUs this process may run on (its affinity, which a
-# ``voro3d batch`` worker sets before it imports this module), at most four.
+# Threads of :func:`winding_number`: the CPUs this process may run on (its affinity, which a ``voro3d batch`` worker
+# sets before it imports this module), at most four.
 WINDING_THREADS = min(4, available_cpus())
-# Neighbour entries per block of a chunked kNN query (:func:`knn_blocks`): its distances and indices
-# take 32 MB, whatever the cloud's size.
+# Neighbour entries per block of a chunked kNN query (:func:`knn_blocks`): 32 MB, whatever the cloud's size.
 KNN_BLOCK_ENTRIES = 2**21
-# Fast winding numbers this close to 0.5 are recomputed exactly before the inside test; their
-# error was below 0.0034 on every query tried (dev meshes: grid nodes and random points; the open
-# Poisson targets of a 1-view scan, 4,500 queries near 0.5: 0.0026). About 3x that: an open target
-# has wide regions near 0.5, and at 0.05 a forced Poisson target of thingi32_75655 from one view
-# cut to its hull read 82k of them exactly against 41k triangles (97 s; 23 s at 0.01, same mesh).
+# Fast winding numbers this close to 0.5 are recomputed exactly before the inside test; their error was below 0.0034
+# on every query tried (dev meshes: grid nodes and random points; the open Poisson targets of a 1-view scan, 4,500
+# queries near 0.5: 0.0026). About 3x that: an open target has wide regions near 0.5, and at 0.05 a forced Poisson
+# target of thingi32_75655 from one view cut to its hull read 82k of them exactly against 41k triangles (97 s; 23 s at
+# 0.01, same mesh).
 FAST_WINDING_MARGIN = 0.01
 
 
@@ -57,12 +55,12 @@ def _triangles_of(vertices: np.ndarray, triangles, name: str) -> np.ndarray:
     return triangles.astype(np.int64, copy=False)
 
 
-# The one exact winding number is this NumPy sum, not libigl's ``igl.winding_number`` (2.6.3), which
-# is about 110x faster (organic_bunny, 6,966 triangles, 20,000 queries: 0.079 s vs 9.0 s on two
-# threads, values equal to 2e-12) but wrong on open meshes, the case the exact path is for: at the
-# centre of an open hemisphere's opening (exactly 0.5) it returned 0.986, 0.264, 0.743, 0.980 or
-# 0.5, changing from call to call and with the number of queries (benchmarks/bench_winding.py,
-# results/winding.md). Only the few queries that the rays or the fast estimate leave unsure come here.
+# The one exact winding number is this NumPy sum, not libigl's ``igl.winding_number`` (2.6.3), which is about 110x
+# faster (organic_bunny, 6,966 triangles, 20,000 queries: 0.079 s vs 9.0 s on two threads, values equal to 2e-12) but
+# wrong on open meshes, the case the exact path is for: at the centre of an open hemisphere's opening (exactly 0.5) it
+# returned 0.986, 0.264, 0.743, 0.980 or 0.5, changing from call to call and with the number of queries
+# (benchmarks/bench_winding.py, results/winding.md). Only the few queries that the rays or the fast estimate leave
+# unsure come here.
 def winding_number(mesh_vertices, mesh_triangles, queries, *, chunk: int | None = None) -> np.ndarray:
     """Generalized winding number of a triangle soup at query points.
 
@@ -139,13 +137,12 @@ def winding_number(mesh_vertices, mesh_triangles, queries, *, chunk: int | None 
 class InsideOutside:
     """Inside/outside, distance and closest-point queries against one mesh, built once.
 
-    Wraps ``open3d.t.geometry.RaycastingScene``. For a closed mesh, a point is inside when rays
-    along the three ``RAY_DIRECTIONS`` cross the surface an odd number of times; the rare points
-    where the rays disagree are settled by the winding number. Open3D's ``compute_occupancy`` and
-    the sign of its ``compute_signed_distance`` are not used: their rays (any ``nsamples``) all
-    point within 0.001 of (1, 1, 1) and misclassify grid nodes of self-intersecting meshes.
-    Open meshes have no inside unless ``allow_open=True``, which switches to the generalized
-    winding number everywhere.
+    Wraps ``open3d.t.geometry.RaycastingScene``. For a closed mesh, a point is inside when rays along the three
+    ``RAY_DIRECTIONS`` cross the surface an odd number of times; the rare points where the rays disagree are settled
+    by the winding number. Open3D's ``compute_occupancy`` and the sign of its ``compute_signed_distance`` are not
+    used: their rays (any ``nsamples``) all point within 0.001 of (1, 1, 1) and misclassify grid nodes of
+    self-intersecting meshes. Open meshes have no inside unless ``allow_open=True``, which switches to the
+    generalized winding number everywhere.
 
     Parameters
     ----------
@@ -182,10 +179,10 @@ class InsideOutside:
                 "generalized winding number, or reconstruct points sampled on it as a point cloud")
         self.scene = raycasting_scene(self.vertices, self.triangles)
 
-    # Counted on the first inside test (with allow_open): a mesh queried for distances only (a split
-    # Poisson target's whole surface, 375k triangles: 0.08 s) never counts its edges. Crossing parity
-    # needs only an even count on every edge (two sheets that touch along an edge, as Poisson leaves,
-    # are 4): the winding number everywhere instead cost 12 of the 20 s of a lid's Poisson target.
+    # # Counted on the first inside test (with allow_open): a mesh queried for distances only (a split # Poisson
+    # target's whole surface, 375k triangles: 0.08 s) never counts its edges. Crossing parity # needs only an even
+    # count on every edge (two sheets that touch along an edge, as Poisson leaves, # are 4): the winding number
+    # everywhere instead cost 12 of the 20 s of a lid's Poisson target.
     _edge_counts = cached_property(lambda self: welded_edge_counts(self.vertices, self.triangles))
     closed = cached_property(lambda self: bool((self._edge_counts == 2).all()))
     _parity = cached_property(lambda self: bool((self._edge_counts % 2 == 0).all()))
@@ -204,10 +201,9 @@ class InsideOutside:
     def occupancy(self, points) -> np.ndarray:
         """``(n, 3)`` points -> ``(n,)`` bool, True inside.
 
-        Closed mesh (every edge shared by an even number of triangles): crossing parity along
-        each of ``RAY_DIRECTIONS``; where the rays disagree (one grazed an edge, or the mesh
-        self-intersects) the winding number decides. Open mesh (``allow_open=True``): winding
-        number > 0.5 everywhere.
+        Closed mesh (every edge shared by an even number of triangles): crossing parity along each of
+        ``RAY_DIRECTIONS``; where the rays disagree (one grazed an edge, or the mesh self-intersects) the winding
+        number decides. Open mesh (``allow_open=True``): winding number > 0.5 everywhere.
         """
         import open3d as o3d
 
@@ -230,10 +226,9 @@ class InsideOutside:
         return inside
 
     def _winding_inside(self, points: np.ndarray, *, absolute: bool = False) -> np.ndarray:
-        """Winding number (its magnitude where ``absolute``) > 0.5, from libigl's fast (Barnes-Hut)
-        estimate, which errs by a few thousandths, made exact (:func:`winding_number`) where it is
-        near 0.5: hundreds of times faster than the exact sum everywhere (a Poisson target whose
-        flaps cross itself splits the rays of 10^5 grid nodes)."""
+        """Winding number (its magnitude where ``absolute``) > 0.5, from libigl's fast (Barnes-Hut) estimate, which
+        errs by a few thousandths, made exact (:func:`winding_number`) where it is near 0.5: hundreds of times faster
+        than the exact sum everywhere (a Poisson target whose flaps cross itself splits the rays of 10^5 grid nodes)."""
         import igl
 
         estimate = igl.fast_winding_number(self.vertices, self.triangles.astype(np.int64), points)
@@ -308,10 +303,10 @@ def sdf_grid(mesh, grid: int, *, allow_open: bool = False) -> np.ndarray:
 def knn_blocks(tree, k, *, sample: int | None = None, block: int | None = None):
     """The ``k`` nearest neighbours of a cKDTree's own points, a block of points at a time.
 
-    The caller keeps its per-point reductions of each block, so no (n, k) table of the whole
-    cloud is ever alive. Blocks follow the tree's leaf order: neighbouring queries walk the same
-    nodes, 2.7 times faster than in the cloud's order (10^6 bunny points, k = 17: 2.2 s against
-    5.9 s). The answers are those of one ``tree.query`` of all points.
+    The caller keeps its per-point reductions of each block, so no (n, k) table of the whole cloud is ever alive.
+    Blocks follow the tree's leaf order: neighbouring queries walk the same nodes, 2.7 times faster than in the
+    cloud's order (10^6 bunny points, k = 17: 2.2 s against 5.9 s). The answers are those of one ``tree.query`` of
+    all points.
 
     Parameters
     ----------
@@ -333,24 +328,29 @@ def knn_blocks(tree, k, *, sample: int | None = None, block: int | None = None):
     """
     if block is None:
         block = max(1, KNN_BLOCK_ENTRIES // int(np.size(k) if np.ndim(k) else k))
-    order = tree.indices
-    if sample is not None and sample < tree.n:
-        picked = np.zeros(tree.n, bool)
-        picked[np.random.default_rng(0).choice(tree.n, positive_int(sample, "sample"), replace=False)] = True
-        order = order[picked[order]]
+    order = query_order(tree, sample)
     for start in range(0, order.shape[0], positive_int(block, "block")):
         chosen = order[start:start + block]
         distance, neighbour = tree.query(tree.data[chosen], k=k, workers=-1)
         yield chosen, distance.reshape(len(chosen), -1), neighbour.reshape(len(chosen), -1)
 
 
+def query_order(tree, sample: int | None = None) -> np.ndarray:
+    """The points :func:`knn_blocks` queries, in its order: the tree's leaf order (of a seeded ``sample``)."""
+    order = tree.indices
+    if sample is not None and sample < tree.n:
+        picked = np.zeros(tree.n, bool)
+        picked[np.random.default_rng(0).choice(tree.n, positive_int(sample, "sample"), replace=False)] = True
+        order = order[picked[order]]
+    return order
+
+
 def nearest_distance(points, queries) -> np.ndarray:
     """(q,) float64: the distance from each of ``queries`` (q, 3) to the nearest of ``points`` (n, 3).
 
-    Open3D's search index, not a cKDTree: queries far from a dense sheet of points (samples of a
-    closure behind a one-view scan) meet many leaves at nearly the same distance, where scipy's
-    tree is slow (20,000 such samples against 300,000 points: 1.78 s against 0.19 s, index
-    included; the same distances).
+    Open3D's search index, not a cKDTree: queries far from a dense sheet of points (samples of a closure behind a
+    one-view scan) meet many leaves at nearly the same distance, where scipy's tree is slow (20,000 such samples
+    against 300,000 points: 1.78 s against 0.19 s, index included; the same distances).
     """
     import open3d as o3d
 
@@ -407,8 +407,8 @@ def point_areas(points, *, k: int = 16, tree=None, block: int | None = None, dis
                 normals=None) -> np.ndarray:
     """Surface area each point of a cloud stands for, from its k-th neighbour distance.
 
-    A disc of radius r_k around a point holds about k points, so each stands for
-    ``pi r_k^2 / k``: the weights the point-cloud winding number needs.
+    A disc of radius r_k around a point holds about k points, so each stands for ``pi r_k^2 / k``: the weights the
+    point-cloud winding number needs.
 
     Parameters
     ----------

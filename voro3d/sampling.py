@@ -6,6 +6,7 @@ import numpy as np
 from ._validate import positive_int
 from .geometry import face_area_vectors
 from .io import mesh_arrays
+from .rowblocks import map_rows
 
 __all__ = ["sample_surface", "grid_nodes", "node_coordinates"]
 
@@ -54,14 +55,18 @@ def sample_surface(mesh, n_samples: int, *, seed: int = 0, density=None) -> tupl
     if not cdf[-1] > 0:
         raise ValueError("mesh has zero surface area; nothing to sample")
     rng = np.random.default_rng(seed)
-    # side="right" never selects a zero-area face: its cdf step is empty.
-    face = np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right")
-    face = np.minimum(face, triangles.shape[0] - 1)  # guards the measure-zero draw of exactly cdf[-1]
+    draws = rng.random(n) * cdf[-1]
     r1, r2 = rng.random((2, n, 1))
-    root = np.sqrt(r1)
-    points = (1 - root) * a[face] + root * (1 - r2) * b[face] + root * r2 * c[face]
-    normals = cross[face] / double_area[face, None]
-    return points, normals
+
+    def samples(draw, r1, r2):
+        # side="right" never selects a zero-area face: its cdf step is empty.
+        face = np.searchsorted(cdf, draw, side="right")
+        face = np.minimum(face, triangles.shape[0] - 1)  # guards the measure-zero draw of exactly cdf[-1]
+        root = np.sqrt(r1)
+        points = (1 - root) * a[face] + root * (1 - r2) * b[face] + root * r2 * c[face]
+        return points, cross[face] / double_area[face, None]
+
+    return map_rows(samples, draws, r1, r2)
 
 def grid_nodes(grid: int) -> np.ndarray:
     """Nodes of a ``grid^3`` lattice spanning ``[-1, 1]^3`` inclusive.

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..rowblocks import map_rows
 from .preprocess import NOISE_NEIGHBOURS, SPACING_NEIGHBOURS, plane_normals, wall_points
 from .tuning import MAX_TIE_WEIGHT, SIGN_SAMPLE, UNDECIDED_SIGMAS
 
@@ -22,8 +23,6 @@ REPAIRABLE_SHARE = 0.5
 # Graph edges whose weights are computed at a time: their (block, 3) float64 temporaries, not the
 # whole graph's (16 edges a point), are alive.
 EDGE_BLOCK = 2**20
-# Points per block of mean_curvature (16 neighbours: 24 MB a block).
-CURVATURE_BLOCK = 2**16
 # Clouds of more points are oriented on an evenly spread subset of about this many, each other point
 # then signed like the nearest of its CARRY_CANDIDATES nearest subset points whose plane passes
 # nearest it (the one on its own side of a thin wall). 10^6 points of 7 dev meshes (2026-12-07,
@@ -141,7 +140,7 @@ def estimate_normals(points: np.ndarray, *, k: int = NEIGHBOURS, graph_k: int | 
     across = np.flatnonzero(wall_points(points, neighbours) if walls is None else walls)
     distances, neighbours = distances[:, :k + 1], neighbours[:, :k + 1]
     if across.size:
-        normals[across] = plane_normals(points[neighbours[across, :min(SPACING_NEIGHBOURS, k) + 1]])
+        normals[across] = map_rows(lambda rows: plane_normals(points[rows]), neighbours[across, :min(SPACING_NEIGHBOURS, k) + 1])
     graph_k = k if graph_k is None else min(graph_k, k)
     return orient_normals(points, normals, neighbours=(distances[:, :graph_k + 1], neighbours[:, :graph_k + 1]))
 
@@ -382,8 +381,7 @@ def _forest_signs(count: int, rows, cols, agree, *, roots: bool = False):
     return (sign[:count], firsts[piece]) if roots else sign[:count]
 
 
-def mean_curvature(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray, *,
-                   block: int = CURVATURE_BLOCK) -> np.ndarray:
+def mean_curvature(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Signed mean curvature of an oriented sampled surface at each point.
 
     The median over the point's neighbours ``j`` of ``(n_j - n_i) . (p_j - p_i) / |p_j - p_i|^2``:
@@ -404,15 +402,15 @@ def mean_curvature(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
         In inverse units of ``points``.
     """
     n = points.shape[0]
-    curvature = np.empty(n)
-    for start in range(0, n, block):
-        rows = np.arange(start, min(start + block, n))
+
+    def curvature(rows):
         near = neighbours[rows]
         near = np.where(near < n, near, rows[:, None])  # a missing neighbour: itself, a zero step
         step = points[near] - points[rows, None, :]
         turn = np.einsum("ijk,ijk->ij", normals[near] - normals[rows, None, :], step)
-        curvature[rows] = np.median(turn / np.maximum(np.einsum("ijk,ijk->ij", step, step), 1e-300), axis=1)
-    return curvature
+        return np.median(turn / np.maximum(np.einsum("ijk,ijk->ij", step, step), 1e-300), axis=1)
+
+    return map_rows(curvature, np.arange(n))
 
 
 def _oriented_from_subset(points, normals, k: int) -> np.ndarray:

@@ -479,8 +479,9 @@ def cloud_mesh(shape, target: SnapTarget, *, clean: bool = True, progress: bool 
     snap = clean and target.snap
     mesh = shape.to_open3d(clean=clean, surface=(target.vertices, target.triangles) if snap else None,
                            smoothing=target.smoothing, refine=target.refine if snap else 0)
+    # A split that would make triangles cross is not made (geometry.split_triangles): "up to".
     done = ", cleaned" + ("" if not snap else " and fitted to the target" if not target.refine else
-                          f", each triangle split in {4**target.refine} and fitted to the target") if clean else ""
+                          f", each triangle split in up to {4**target.refine} and fitted to the target") if clean else ""
     report_phase(progress, "mesh", f"{len(mesh.triangles):,} triangles, watertight{done}", time.perf_counter() - start)
     return mesh
 
