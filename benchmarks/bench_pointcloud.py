@@ -7,8 +7,9 @@ missing, range scans from 1, 3 and 6 viewpoints (``range_scan``), and, only when
 depth camera's frame, ~300k points (``dense range scan 1 view``) and range scans from 1 and 3
 viewpoints with a consumer depth sensor's noise (``noisy range scan ...``), from 3 and 6 whose views
 registration left a little apart (``misaligned range scan ...``), and from 1 and 3 with a time-of-flight
-camera's flying pixels at depth edges (``flying pixels range scan ...``), and clouds of 300 to 5k
-points (``sparse ...``). On each cloud:
+camera's flying pixels at depth edges (``flying pixels range scan ...``), a spinning LiDAR's scan lines
+from 1 and 3 positions (``lidar ...``, ``lidar_scan``), and clouds of 300 to 5k points (``sparse ...``).
+On each cloud:
 
 * VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
   target surface, fit), timed with its split, and ``cloud_mesh`` (extraction, clean, fit to the
@@ -64,6 +65,8 @@ CONDITIONS = {
     "misaligned range scan 6 views": ("misaligned range", 30_000, 6),
     "flying pixels range scan 1 view": ("flying range", 30_000, 1),
     "flying pixels range scan 3 views": ("flying range", 30_000, 3),
+    "lidar 1 position": ("lidar", 0, 1),
+    "lidar 3 positions": ("lidar", 0, 3),
     "sparse 300": ("clean", 300, 0.0),
     "sparse 600": ("clean", 600, 0.0),
     "sparse 1k": ("clean", 1_000, 0.0),
@@ -94,6 +97,14 @@ MISALIGN_SHIFT = 0.002
 FLYING_SHARE = 0.5
 FLYING_EDGE = 0.02
 FLYING_DEPTH = 0.1
+# The "lidar" kind: a spinning LiDAR's LIDAR_BEAMS scan lines, each swept in LIDAR_STEPS azimuth steps across
+# the shape (lines 10x as far apart as the steps along them, as a 16-beam sensor's 2 degrees against
+# its 0.2), from 1 or 3 positions around it, LIDAR_DISTANCE diagonals away and LIDAR_ELEVATION
+# radians above its centre; grazing hits dropped and depth noise as the range scanner's.
+LIDAR_BEAMS = 48
+LIDAR_STEPS = 480
+LIDAR_DISTANCE = 2.5
+LIDAR_ELEVATION = 0.25
 COLOURED = "clean 20k"
 PICTURED = ("organic_bunny.off", "cad_fandisk.obj")
 # Seconds given to Open3D's normal orientation before the baseline falls back to ours.
@@ -104,7 +115,7 @@ ORIENT_TIMEOUT = 120
 ORIENT_NEIGHBOURS = 30
 PICTURED_CONDITIONS = ("clean 5k", "noise 1%", "outliers 2%", "third missing", "range scan 1 view", "range scan 3 views",
                        "dense range scan 1 view", "noisy range scan 1 view", "noisy range scan 3 views",
-                       "misaligned range scan 3 views", "flying pixels range scan 3 views", "sparse 600",
+                       "misaligned range scan 3 views", "flying pixels range scan 3 views", "lidar 3 positions", "sparse 600",
                        "sparse 2k, noise 0.25%")
 
 
@@ -123,6 +134,8 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
                           noise=NOISY_RANGE_NOISE if kind == "noisy range" else RANGE_NOISE,
                           misalign=(MISALIGN_DEGREES, MISALIGN_SHIFT) if kind == "misaligned range" else None,
                           flying=FLYING_SHARE if kind == "flying range" else 0.0)
+    if kind == "lidar":
+        return lidar_scan(vertices, triangles, parameter, rng)
     if kind == "ramp":
         points, _ = sample_surface((vertices, triangles), 4 * n, seed=seed)
         along = (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
@@ -194,6 +207,39 @@ def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS
         found.append(points)
     points = np.vstack(found)
     return points[rng.permutation(len(points))[:n]]
+
+
+def lidar_scan(vertices, triangles, positions: int, rng) -> np.ndarray:
+    """Points a spinning LiDAR sees from ``positions`` places spread in longitude around the shape:
+    ``LIDAR_BEAMS`` lines of elevation, each swept in ``LIDAR_STEPS`` steps of azimuth, both spans
+    covering the shape's bounding sphere; every hit kept (all of them: the lines are the point)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    centre = 0.5 * (vertices.min(0) + vertices.max(0))
+    diagonal = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    found = []
+    for longitude in rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(positions) / positions:
+        eye = centre + LIDAR_DISTANCE * diagonal * np.array([np.cos(longitude), np.sin(longitude), LIDAR_ELEVATION])
+        forward = (centre - eye) / np.linalg.norm(centre - eye)
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, forward)
+        half = np.arcsin(0.5 * diagonal / np.linalg.norm(centre - eye))
+        elevation, azimuth = np.meshgrid(np.linspace(-half, half, LIDAR_BEAMS), np.linspace(-half, half, LIDAR_STEPS),
+                                         indexing="ij")
+        directions = ((np.cos(elevation) * np.cos(azimuth))[..., None] * forward
+                      + (np.cos(elevation) * np.sin(azimuth))[..., None] * right
+                      + np.sin(elevation)[..., None] * up).reshape(-1, 3)
+        rays = np.hstack([np.repeat(eye[None], len(directions), axis=0), directions]).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))
+        depth = hit["t_hit"].numpy().astype(np.float64)
+        facing = np.abs(np.einsum("ij,ij->i", hit["primitive_normals"].numpy(), directions))
+        seen = np.isfinite(depth) & (facing > np.cos(np.radians(RANGE_GRAZING)))
+        depth[seen] += rng.normal(scale=RANGE_NOISE * diagonal, size=int(seen.sum()))
+        found.append(eye + depth[seen, None] * directions[seen])
+    return np.vstack(found)
 
 
 def _depth_edges(distance, pixels, gap: float) -> np.ndarray:
@@ -702,6 +748,8 @@ def main():
                         "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--sheet-support", type=float, help="SHEET_SUPPORT for this run (inf: no such rule), the "
                         "ablation beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--line-ratio", type=float, help="LINE_RATIO for this run (0: no cloud is thinned along its "
+                        "scan lines), the ablation beside it")
     parser.add_argument("--prefilter", action="store_true", help="Open3D's statistical outlier removal (20 neighbours, "
                         "2 deviations) on each cloud before VoroMesh, as the README advises for flying pixels")
     parser.add_argument("--pictured", nargs="+", default=list(PICTURED), help="shapes whose meshes the picture shows")
@@ -737,6 +785,10 @@ def main():
         plan_module.SHEET_SUPPORT = args.sheet_support
     if args.auto_width is not None:
         resolution_module.AUTO_SPACINGS_PER_VOXEL = args.auto_width
+    if args.line_ratio is not None:
+        import voro3d.pointcloud.preprocess as preprocess_module
+
+        preprocess_module.LINE_RATIO = args.line_ratio
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -752,6 +804,7 @@ def main():
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
                 sheet_support="default" if args.sheet_support is None else args.sheet_support,
                 auto_width="default" if args.auto_width is None else args.auto_width,
+                line_ratio="default" if args.line_ratio is None else args.line_ratio,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured,
                 prefilter=args.prefilter)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)

@@ -27,7 +27,8 @@ def _arrays(mesh):
 def test_defaults_are_auto_and_print():
     plan = CloudPlan()
     assert all(getattr(plan, item.name) == "auto" for item in dataclasses.fields(plan))
-    assert str(CloudPlan(target="imls", denoise="off")) == "normals auto, denoise off, filter auto, target imls, hull auto"
+    assert str(CloudPlan(target="imls", denoise="off")) == ("normals auto, denoise off, filter auto, target imls, hull auto, "
+                                                            "thin auto")
 
 
 @pytest.mark.parametrize("plan, error, match", [
@@ -51,7 +52,7 @@ def test_bad_plan_refused_before_any_work(torus):
 def test_the_plan_as_it_ran_gives_the_same_mesh(torus):
     points, normals = torus
     shape, target, info = reconstruct_points(points, normals, **FAST)
-    assert info.plan == CloudPlan(normals="check", denoise="off", filter="off", target="poisson", hull="off")
+    assert info.plan == CloudPlan(normals="check", denoise="off", filter="off", target="poisson", hull="off", thin="off")
     again, target_again, info_again = reconstruct_points(points, normals, plan=info.plan, **FAST)
     assert info_again.plan == info.plan
     first, second = _arrays(cloud_mesh(shape, target)), _arrays(cloud_mesh(again, target_again))
@@ -75,7 +76,8 @@ def test_each_choice_is_obeyed(torus):
 
 
 def test_cli_choices_are_the_plans():
-    assert PLAN_FIELDS == {"normals": NORMALS, "denoise": SWITCHES, "filter": SWITCHES, "target": TARGETS, "hull": SWITCHES}
+    assert PLAN_FIELDS == {"normals": NORMALS, "denoise": SWITCHES, "filter": SWITCHES, "target": TARGETS, "hull": SWITCHES,
+                           "thin": SWITCHES}
 
 
 def test_cli_sets_and_prints_the_plan(tmp_path, torus, capsys):
@@ -83,7 +85,7 @@ def test_cli_sets_and_prints_the_plan(tmp_path, torus, capsys):
     assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(tmp_path / "out.ply"), "--grid", "16",
                  "--steps", "20", "--target", "imls", "--denoise", "off", "--hull", "on"]) == 0
     err = capsys.readouterr().err
-    assert "plan: normals check, denoise off, filter off, target imls, hull on" in err
+    assert "plan: normals check, denoise off, filter off, target imls, hull on, thin off" in err
     assert main(["reconstruct", str(tmp_path / "cloud.npy"), "-o", str(tmp_path / "x.ply"), "--normals", "check",
                  "--grid", "16"]) == 0  # the .npy holds normals
     np.save(tmp_path / "bare.npy", torus[0])

@@ -30,10 +30,11 @@ import sys
 import numpy as np
 
 from . import _fitkernel
+from ._system import available_cpus
 from .fitloop import Adam, FitLoop, spatial_order
 from .geometry import grid_voxel
 
-__all__ = ["KernelLoop", "available_cpus", "cpu_threads"]
+__all__ = ["KernelLoop", "cpu_threads"]
 
 
 def cpu_threads() -> int:
@@ -46,11 +47,6 @@ def cpu_threads() -> int:
     if setting.isdigit() and int(setting) > 0:
         return int(setting)
     return available_cpus()
-
-
-def available_cpus() -> int:
-    """The CPUs this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 class KernelLoop(FitLoop):

@@ -18,7 +18,8 @@ from ._extras import MissingExtra
 # The choices of a cloud's plan (voro3d.pointcloud.CloudPlan; a test keeps them equal), written out
 # so that --help need not import the point-cloud package; "auto" lets the analysis decide.
 PLAN_FIELDS = {"normals": ("auto", "check", "trust", "estimate"), "denoise": ("auto", "on", "off"),
-               "filter": ("auto", "on", "off"), "target": ("auto", "poisson", "imls", "sheet"), "hull": ("auto", "on", "off")}
+               "filter": ("auto", "on", "off"), "target": ("auto", "poisson", "imls", "sheet"), "hull": ("auto", "on", "off"),
+               "thin": ("auto", "on", "off")}
 
 __all__ = ["build_parser", "main"]
 
@@ -144,7 +145,7 @@ _FLAG_NAMES = [
     (re.compile(r"allow_open=True"), "--allow-open"),
     (re.compile(r"plan applies to point clouds only; a mesh input takes plan=None"),
      "--normals, --denoise, --filter, --target and --hull apply to point clouds only"),
-    (re.compile(r"\bplan (normals|denoise|filter|target|hull)\b"), r"--\1"),
+    (re.compile(r"\bplan (normals|denoise|filter|target|hull|thin)\b"), r"--\1"),
     (re.compile(r"reconstruct points sampled on it as a point cloud"), "reconstruct points sampled on it (--sample N)"),
     (re.compile(r"method='(\w+)'"), r"--method \1"),
     (re.compile(r"\b(steps|seed|device|grid|allow_open)\b(?= (must|applies|or|\())"),
@@ -313,6 +314,10 @@ def build_parser() -> argparse.ArgumentParser:
     rebuild.add_argument("--hull", choices=PLAN_FIELDS["hull"], default="auto",
                          help="point clouds: cut the target back to the points' convex hull, for range scans from a "
                               "few viewpoints (default: on for one-sided scans, off for clouds that enclose a volume)")
+    rebuild.add_argument("--thin", choices=PLAN_FIELDS["thin"], default="auto",
+                         help="point clouds: thin points sampled along scan lines far apart for their spacing along "
+                              "them (a LiDAR's) until their neighbourhoods are two-dimensional (default: when they "
+                              "are not)")
     _allow_open_option(rebuild)
     rebuild.add_argument("--engine", choices=("local", "ray"), default="local",
                          help="where a large cloud's tiles are fitted (over 2 million points): a local process pool "

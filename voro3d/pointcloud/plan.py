@@ -58,6 +58,11 @@ class CloudPlan:
         a table seen from above comes back as thin as its seen edges, not a shell's depth), off for
         one that does: with a part cut away it would take the closure's continuation off with the
         swelling, and no measure of the cloud yet tells the two apart (beside ``HULL_MARGIN_NODES``).
+    thin : {"auto", "on", "off"}
+        Thin the points along the lines they were sampled on, far apart for their spacing along
+        them (a LiDAR's scan lines), whose nearest neighbours all lie on their own line
+        (:func:`~voro3d.pointcloud.preprocess.thin_lines`). ``"auto"``: while they do
+        (``LINE_RATIO``); ``"on"``: one round at least.
     """
 
     normals: str = "auto"
@@ -65,10 +70,11 @@ class CloudPlan:
     filter: str = "auto"
     target: str = "auto"
     hull: str = "auto"
+    thin: str = "auto"
 
     def __post_init__(self):
         for name, choices in (("normals", NORMALS), ("denoise", SWITCHES), ("filter", SWITCHES),
-                              ("target", TARGETS), ("hull", SWITCHES)):
+                              ("target", TARGETS), ("hull", SWITCHES), ("thin", SWITCHES)):
             if getattr(self, name) not in choices:
                 raise ValueError(f"plan {name} must be one of {choices}, got {getattr(self, name)!r}")
 

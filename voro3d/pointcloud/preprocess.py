@@ -10,7 +10,7 @@ from .tuning import (CHECK_POINTS, STATISTICS_SAMPLE, SUSPECT_FLATNESS, SUSPECT_
                      WALL_VOTE)
 
 __all__ = ["CloudStats", "check_stride", "cloud_stats", "stride", "outlier_mask", "outlier_neighbours", "local_dimension", "fill_ratio", "merge_duplicates",
-           "separate_objects", "plane_normals", "two_sheets", "wall_points"]
+           "group_means", "separate_objects", "plane_normals", "two_sheets", "wall_points"]
 
 # Neighbours of the spacing and noise estimates.
 SPACING_NEIGHBOURS = 8
@@ -67,11 +67,15 @@ def merge_duplicates(points: np.ndarray, *attributes):
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     index = rank[index.reshape(-1)]
-    count = np.bincount(index)
-    merged = [None if values is None else
-              np.stack([np.bincount(index, weights=column) for column in values.T], axis=1) / count[:, None]
-              for values in attributes]
-    return (unique[order], *merged)
+    return (unique[order], *group_means(index, *attributes))
+
+
+def group_means(group: np.ndarray, *values) -> list:
+    """The mean of each of ``values`` ((n, c) float64 or None) over the points of each ``group`` ((n,) int, 0 to m - 1)."""
+    count = np.bincount(group)
+    return [None if column_values is None else
+            np.stack([np.bincount(group, weights=column) for column in column_values.T], axis=1) / count[:, None]
+            for column_values in values]
 
 
 def separate_objects(points: np.ndarray, *, min_points: int, margin: float = 0.5) -> list[np.ndarray]:

@@ -24,6 +24,7 @@ from ..snapping import NOISY_SMOOTHING
 from ..geometry import grid_voxel
 from .normals import REPAIRABLE_SHARE, estimate_normals, orient_normals, repair_normals, sign_disagreement, unusable_normals
 from .preprocess import MAX_SURFACE_DIMENSION, MAX_SURFACE_FILL, cloud_stats, fill_ratio, local_dimension, merge_duplicates, outlier_mask, outlier_neighbours
+from .scanlines import thin_lines
 from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_hull, settle_normals
@@ -69,19 +70,16 @@ class PointCloudInfo:
         The plan as it ran, every choice settled (:mod:`~voro3d.pointcloud.plan`); read from it:
         ``smoothed`` (bool: the noise-smoothing pass ran), ``filtered`` (bool: the Poisson target
         was bilateral-filtered) and ``target`` (``"poisson"``, ``"imls"`` or ``"sheet"``).
-    grid : int
-        VoroMesh grid used: its finest level when ``levels > 0``.
-    levels : int
-        Coarser levels of the adaptive band (:class:`voro3d.generators.AdaptiveBand`); 0 for a
-        uniform grid.
+    grid, levels : int
+        VoroMesh grid used (its finest level), and the coarser levels of the adaptive band
+        (:class:`voro3d.generators.AdaptiveBand`); 0 for a uniform grid.
     voxel : float
         The grid's voxel, in the input's units.
     offset : float
         How far the target keeps from the points by design, in the input's units: the shell's
         offset for target ``"sheet"``, else 0.
     tiles : int
-        Tiles the fit was cut into (:mod:`voro3d.pointcloud.tiles`): 0 for a cloud of at most
-        ``TILE_POINTS`` points, whose fit is one loop.
+        Tiles the fit was cut into (:mod:`voro3d.pointcloud.tiles`): 0 for one loop (``TILE_POINTS`` points or fewer).
     seconds : dict
         ``clean`` (outliers, statistics), ``normals``, ``surface`` (field and proxy mesh),
         ``samples`` (sampling and projection), ``fit`` (VoroLoss fit and cell labels).
@@ -153,9 +151,10 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
                        plan=None, engine: str = "local", workers: int | None = None, progress: bool = False):
     """VoroMesh of a point cloud, through a smooth target surface.
 
-    1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), outliers
-       out (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise
-       measured; a cloud that fills a volume instead of sampling a surface is refused.
+    1. Repeated points merged (:func:`~voro3d.pointcloud.preprocess.merge_duplicates`), points on
+       scan lines far apart thinned along them (``plan.thin``), outliers out
+       (:func:`~voro3d.pointcloud.preprocess.outlier_mask`), spacing and noise measured; a cloud
+       that fills a volume instead of sampling a surface is refused.
     2. The plan (:class:`~voro3d.pointcloud.plan.CloudPlan`): its fields left ``"auto"`` are
        settled from what steps 1-3 find, and the chosen plan is printed with ``progress``.
        Normals: the given ones, checked (zero, NaN or inf ones taken from their neighbours,
@@ -172,11 +171,10 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        with the call, :func:`~voro3d.pointcloud.poisson.poisson_surface`); for an open,
        one-sided scan the IMLS field near the points and their winding number away from them,
        held by the points' convex hull where ``plan.hull`` cuts to it (auto: open clouds), else
-       within each point's shell depth (its curvature's radius, at most ``SHELL_DEPTH``) of
-       the points where they do not enclose it (a shell under the
-       seen side, not a block out to the box), on a grid twice as fine as the VoroMesh grid,
-       meshed by Marching Cubes. Either cut back to the points' convex hull where ``plan.hull``
-       asks (:mod:`~voro3d.pointcloud.hull`).
+       within each point's shell depth (its curvature's radius, at most ``SHELL_DEPTH``) of the points
+       where they do not enclose it (a shell under the seen side, not a block out to the box), on a
+       grid twice as fine as the VoroMesh grid, meshed by Marching Cubes. Either cut back to the
+       points' convex hull where ``plan.hull`` asks (:mod:`~voro3d.pointcloud.hull`).
     5. The VoroLoss samples: ``CLOUD_SAMPLES_PER_FACE grid^2`` (75) of them from the target mesh,
        or, for a dense scan, the points themselves (:func:`~voro3d.pointcloud.resolution.target_samples`); the target
        labels the cells.
@@ -200,19 +198,17 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
     method : {"fit", "learned"}
         VoroLoss fit, or the ONNX network on the target's signed distance grid.
     steps, seed, device : int, int, str, optional
-        As in :func:`voro3d.fit` (defaults ``CLOUD_STEPS`` = 120, 0, ``"cpu"``: a cloud's mesh is
-        fitted to its target afterwards; its candidates are searched again after
-        ``CLOUD_REFRESH_VOXELS`` = 2.5 voxels of a move); refused with ``method="learned"``, which
-        uses none of them.
+        As in :func:`voro3d.fit` (defaults ``CLOUD_STEPS`` = 120, 0, ``"cpu"``: a cloud's mesh is fitted to its
+        target afterwards; its candidates are searched again after ``CLOUD_REFRESH_VOXELS`` = 2.5 voxels of a
+        move); refused with ``method="learned"``, which uses none of them.
     model, threads
         As in :func:`voro3d.reconstruct`.
     progress : bool
         As in :func:`voro3d.fit`, and one line on stderr per phase (clean, normals, target, fit)
         with what it chose and its time.
     plan : CloudPlan, dict or None
-        The choices of steps 2-4 (:class:`~voro3d.pointcloud.plan.CloudPlan`: ``normals``,
-        ``denoise``, ``filter``, ``target``, ``hull``), or a dict of some of them; None or ``"auto"`` fields
-        are decided from the cloud. ``info.plan`` is the plan as it ran.
+        The choices of steps 1-4 (:class:`~voro3d.pointcloud.plan.CloudPlan`), or a dict of some of
+        them; None or ``"auto"`` fields are decided from the cloud. ``info.plan`` is the plan as it ran.
     engine : {"local", "ray"}
         Where a tiled fit's tiles run: a local process pool, or Ray tasks
         (:func:`~voro3d.pointcloud.tiles.fit_tiles`); the same mesh either way.
@@ -293,6 +289,11 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     frame = fit_frame(points)
     framed = frame.apply(points)
     tree = cKDTree(framed)
+    before, rounds = len(framed), 0
+    if plan.thin != "off":
+        framed, normals, rounds = thin_lines(framed, normals, tree=tree, force=plan.thin == "on", min_points=MIN_POINTS)
+    if rounds:
+        points, tree, normals = frame.invert(framed), cKDTree(framed), normals if normals is None else repair_normals(framed, normals)
     # One kNN table for the outlier tests, the spacing and the point areas (1M points: 4.7 s less).
     neighbours = outlier_neighbours(framed, tree=tree)
     outliers = outlier_mask(framed, tree=tree, neighbours=neighbours)
@@ -314,12 +315,11 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
         normals, normal_source = orient_normals(framed, normals), "given, re-oriented"
     seconds["normals"] = time.perf_counter() - start
     start = time.perf_counter()
-    # Given normals tell the two sides of a thin wall apart: the far side stays out of the noise
-    # and the point areas (bench_thin_walls; 12 dev meshes with their true normals, clean 5k / clean
-    # 20k / 0.5% noise, mean CD 12.6 -> 1.65, 2.06 -> 0.80, 4.35 -> 3.83, none worse by 0.3%). Ours
-    # do not: their signs are 38-47% wrong across such walls, and used so on 14 dev meshes x 6
-    # conditions without normals, the lid abc_00000007 went from CD 47.8 to 445 (clean 5k) and 14.7
-    # to 117 (clean 20k); the other 82 clouds moved by -8% to +9% (the noisy ones -1%).
+    # Given normals tell the two sides of a thin wall apart: the far side stays out of the noise and the point areas
+    # (bench_thin_walls; 12 dev meshes with their true normals, clean 5k / clean 20k / 0.5% noise, mean CD 12.6 ->
+    # 1.65, 2.06 -> 0.80, 4.35 -> 3.83, none worse by 0.3%). Ours do not: their signs are 38-47% wrong across such
+    # walls, and used so on 14 dev meshes x 6 conditions without normals, the lid abc_00000007 went from CD 47.8 to
+    # 445 (clean 5k) and 14.7 to 117 (clean 20k); the other 82 clouds moved by -8% to +9% (the noisy ones -1%).
     sides = normals if normal_source == "given" else None
     stats = cloud_stats(framed, tree=tree, neighbours=neighbours, normals=sides)
     if not stats.median_spacing > 1e-9:
@@ -339,7 +339,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     grid, levels = choose_grid(grid, stats.median_spacing, adaptive=method == "fit", exact=not noisy)
     seconds["clean"] += time.perf_counter() - start
     report_phase(progress, "clean", f"{len(points):,} points kept of "
-                 f"{n_points:,}{f' (a subset of {distinct:,} distinct)' if subset is not None else ''} "
+                 f"{n_points:,}{f' (a subset of {distinct:,} distinct)' if subset is not None else ''}"
+                 f"{f' (thinned along its scan lines, {before:,} -> {len(framed):,})' if rounds else ''} "
                  f"({int(outliers.sum()):,} outliers), "
                  f"spacing {stats.median_spacing / frame.scale:.3g}, noise {stats.noise / frame.scale:.3g}, grid {grid}"
                  f"{f' adaptive over {levels + 1} levels' if levels else ''}",
@@ -400,7 +401,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     check_coverage(target, framed, widths, distance=distance if framed is given else None)
     surface_vertices = target.project(target.vertices)
     plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind,
-                     hull=settle_hull(plan, closed=closed, kind=kind))
+                     hull=settle_hull(plan, closed=closed, kind=kind), thin="on" if rounds else "off")
     seconds["surface"] = time.perf_counter() - start
     # What the plan's hull would cut, read for the report only.
     past = reach_past_hull(target, framed, resolution) if progress and plan.hull == "off" and kind != "sheet" else 0.0

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._cpufit import available_cpus
+from .._system import available_cpus
 from .tuning import ANALYSIS_POINTS, SEAM_STEPS, SEAM_WIDTH, TILE_MARGIN, TILE_POINTS, TILE_SAMPLES
 
 __all__ = ["ENGINES", "Tile", "analysis_subset", "fit_in_tiles", "fit_tiles", "seam_tile", "split_tiles"]

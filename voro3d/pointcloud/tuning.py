@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_BOUNDARY_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "SHELL_ROUNDING_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_SUPPORT", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_BOUNDARY_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "SHELL_ROUNDING_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_SUPPORT", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "LINE_RATIO", "LINE_SAMPLE", "THIN_ROUNDS", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
@@ -83,36 +83,32 @@ BAND_TOLERANCE = 0.05
 # The target surface's resolution follows the grid up to this one (Poisson depth 8), finer only
 # for dense points (TARGET_CELL_SPACINGS); its Poisson depth: pointcloud.poisson.poisson_depth.
 MAX_TARGET_GRID = 64
-# The Poisson target goes finer than MAX_TARGET_GRID asks while its octree cells stay this many
-# median spacings wide (pointcloud.poisson.poisson_depth): dense clouds hold the detail. 1M oriented
-# points of 4 dev meshes (bench_large, depth 9 instead of 8): CD bunny 0.595 -> 0.589, fandisk 0.666
-# -> 0.664, abc_00000005 0.635 -> 0.629 (Poisson depth 9 alone: 0.591, 0.665, 0.630), armadillo
-# 0.463 both; 33-40 s instead of 18-28 s. At 100k points depth 9 gained nothing (CD -0.2% to
-# +0.6%, 1.2-2 s more), and this keeps them at 8: cells 1.2 spacings wide at depth 9.
-# With the mesh split before its snap (resolution.refine_levels), depth 8 forced at 10^6 points, split
-# all the same (CD / NC the means of 5 evaluation seeds, 2026-12-04): armadillo 0.4601 / 0.9823 ->
-# 0.4610 / 0.9820 and 47.7 -> 31.2 s, bunny 0.5903 / 0.9903 -> 0.5911 / 0.9902 and 60.0 -> 30.5 s
-# (Poisson depth 9 alone: 0.4589, 0.5908): half the time for 0.1-0.2% CD, kept at depth 9.
-# The 1M-point subset of a denser cloud (pointcloud.tiles) reads its own spacing and goes to depth 9
-# as well (it stayed at the grid's depth 8 before the mesh was split to the target's cells): bunny,
-# 3M / 10M true-normal points, CD 0.595 / 0.589 -> 0.589 / 0.588, NC 0.9883 / 0.9885 -> 0.9933 /
-# 0.9929, 41 / 40 -> 53 / 53 s, 32k -> 510k faces (large_scaling.md; Poisson depth 9: 0.589, 0.9939).
+# The Poisson target goes finer than MAX_TARGET_GRID asks while its octree cells stay this many median spacings wide
+# (pointcloud.poisson.poisson_depth): dense clouds hold the detail. 1M oriented points of 4 dev meshes (bench_large,
+# depth 9 instead of 8): CD bunny 0.595 -> 0.589, fandisk 0.666 -> 0.664, abc_00000005 0.635 -> 0.629 (Poisson depth 9
+# alone: 0.591, 0.665, 0.630), armadillo 0.463 both; 33-40 s instead of 18-28 s. At 100k points depth 9 gained nothing
+# (CD -0.2% to +0.6%, 1.2-2 s more), and this keeps them at 8: cells 1.2 spacings wide at depth 9. With the mesh split
+# before its snap (resolution.refine_levels), depth 8 forced at 10^6 points, split all the same (CD / NC the means of
+# 5 evaluation seeds, 2026-12-04): armadillo 0.4601 / 0.9823 -> 0.4610 / 0.9820 and 47.7 -> 31.2 s, bunny 0.5903 /
+# 0.9903 -> 0.5911 / 0.9902 and 60.0 -> 30.5 s (Poisson depth 9 alone: 0.4589, 0.5908): half the time for 0.1-0.2% CD,
+# kept at depth 9. The 1M-point subset of a denser cloud (pointcloud.tiles) reads its own spacing and goes to depth 9
+# as well (it stayed at the grid's depth 8 before the mesh was split to the target's cells): bunny, 3M / 10M
+# true-normal points, CD 0.595 / 0.589 -> 0.589 / 0.588, NC 0.9883 / 0.9885 -> 0.9933 / 0.9929, 41 / 40 -> 53 / 53 s,
+# 32k -> 510k faces (large_scaling.md; Poisson depth 9: 0.589, 0.9939).
 TARGET_CELL_SPACINGS = 1.5
-# Most midpoint splits of a dense cloud's mesh before its fit to the target (resolution.refine_levels):
-# each quadruples the faces. Two bring a 128 grid's triangles to a depth-9 target's cells (1M points:
-# 520-650k faces against Poisson depth 9's 1.1-1.5M); a 64 grid asked for by hand would want three,
-# 64 times its faces. 10^6 true-normal points (bench_large's clouds, grid "auto": 128 over 3 levels, target
-# depth 9), CD / NC the means of 5 evaluation seeds, unsplit -> split once: bunny 0.5930 / 0.9886 ->
-# 0.5903 / 0.9903, armadillo 0.4623 / 0.9775 -> 0.4601 / 0.9823, fandisk 0.6630 / 0.9881 -> 0.6635 /
-# 0.9889, abc_00000005 0.6334 / 0.9943 -> 0.6328 / 0.9945; split twice, to the cells of the depth-9
-# target (quiet machine, 2026-12-04, benchmarks/results/large_quiet.md -> large.md), CD / NC / whole
-# seconds: bunny 0.5909 / 0.9903 / 53.0 -> 0.5872 / 0.9931 / 42.9, armadillo 0.4602 / 0.9823 / 43.0 ->
-# 0.4577 / 0.9864 / 51.2, fandisk 0.6639 / 0.9889 -> 0.6617 / 0.9901, abc_00000005 0.6323 / 0.9945 ->
-# 0.6315 / 0.9950, abc_00000008 0.2451 / 0.9907 -> 0.2455 / 0.9919, homer 0.4218 / 0.9929 -> 0.4206 /
-# 0.9955 (Poisson depth 9 in the second run: 0.5901 / 0.9938, 0.4594 / 0.9874, 0.6618 / 0.9907, 0.6333 /
-# 0.9950, 0.2451 / 0.9920, 0.4212 / 0.9964); the mesh stage 5-6 s -> 5-10 s, 4x the faces (160-650k,
-# Poisson's 0.4-1.5M). With 10^6 evaluation samples, whose spacing no longer hides the facets,
-# armadillo CD 0.0480 -> 0.0469 (Poisson 0.0464).
+# Most midpoint splits of a dense cloud's mesh before its fit to the target (resolution.refine_levels): each
+# quadruples the faces. Two bring a 128 grid's triangles to a depth-9 target's cells (1M points: 520-650k faces
+# against Poisson depth 9's 1.1-1.5M); a 64 grid asked for by hand would want three, 64 times its faces. 10^6
+# true-normal points (bench_large's clouds, grid "auto": 128 over 3 levels, target depth 9), CD / NC the means of 5
+# evaluation seeds, unsplit -> split once: bunny 0.5930 / 0.9886 -> 0.5903 / 0.9903, armadillo 0.4623 / 0.9775 ->
+# 0.4601 / 0.9823, fandisk 0.6630 / 0.9881 -> 0.6635 / 0.9889, abc_00000005 0.6334 / 0.9943 -> 0.6328 / 0.9945; split
+# twice, to the cells of the depth-9 target (quiet machine, 2026-12-04, benchmarks/results/large_quiet.md ->
+# large.md), CD / NC / whole seconds: bunny 0.5909 / 0.9903 / 53.0 -> 0.5872 / 0.9931 / 42.9, armadillo 0.4602 /
+# 0.9823 / 43.0 -> 0.4577 / 0.9864 / 51.2, fandisk 0.6639 / 0.9889 -> 0.6617 / 0.9901, abc_00000005 0.6323 / 0.9945 ->
+# 0.6315 / 0.9950, abc_00000008 0.2451 / 0.9907 -> 0.2455 / 0.9919, homer 0.4218 / 0.9929 -> 0.4206 / 0.9955 (Poisson
+# depth 9 in the second run: 0.5901 / 0.9938, 0.4594 / 0.9874, 0.6618 / 0.9907, 0.6333 / 0.9950, 0.2451 / 0.9920,
+# 0.4212 / 0.9964); the mesh stage 5-6 s -> 5-10 s, 4x the faces (160-650k, Poisson's 0.4-1.5M). With 10^6 evaluation
+# samples, whose spacing no longer hides the facets, armadillo CD 0.0480 -> 0.0469 (Poisson 0.0464).
 MAX_REFINE = 2
 # A cloud's mesh is split until its triangles are about as fine as the finest detail its Poisson target
 # holds (resolution.refine_levels): the target's octree cell, or this many median spacings, the coarser
@@ -196,16 +192,14 @@ HOLE_LEVEL = 0.42
 # 0.881 -> 0.857, F1 0.634 -> 0.572, lower CD on 4 (the lid from 3 views 357 -> 83), and up to 9x higher on the rest
 # (cow 7.4 -> 70, bunny 11 -> 92): their holes are closed, not cut.
 SHELL_DEPTH = 0.125
-# Each point's depth (surface.shell_depths: the radius of the seen surface's mean curvature) is at
-# most SHELL_DEPTH and at least this many nodes of the field's grid (two VoroMesh voxels at
-# FIELD_REFINEMENT 2: a layer of inside cells the fit can hold). SHELL_DEPTH for every point (the
-# rule before) against each point's own, 2026-12-05, no normals, grid 64: objects on a table
-# (bench_scenes.py, 12 dev meshes) from 1 view CD 138.3 -> 135.5, NC 0.807 -> 0.808, F1 0.285 ->
-# 0.286 (lower CD on 11 of 12); from 3 views 124.7 -> 93.7, 0.886 -> 0.889, 0.392 -> 0.406 (12 of
-# 12: the objects no longer sit in a slab the table's depth deep); the objects alone from 1 view
-# (bench_pointcloud) 249.8 -> 248.7, NC 0.722 -> 0.721, F1 0.350 either way; 3 and 6 views read
-# closed (no limit). This bound at 2 / 4 / 8 nodes: 1 view CD 248.7 / 248.7 / 249.8. Rerun:
-# bench_scenes.py --shell-depth uniform.
+# Each point's depth (surface.shell_depths: the radius of the seen surface's mean curvature) is at most SHELL_DEPTH
+# and at least this many nodes of the field's grid (two VoroMesh voxels at FIELD_REFINEMENT 2: a layer of inside cells
+# the fit can hold). SHELL_DEPTH for every point (the rule before) against each point's own, 2026-12-05, no normals,
+# grid 64: objects on a table (bench_scenes.py, 12 dev meshes) from 1 view CD 138.3 -> 135.5, NC 0.807 -> 0.808, F1
+# 0.285 -> 0.286 (lower CD on 11 of 12); from 3 views 124.7 -> 93.7, 0.886 -> 0.889, 0.392 -> 0.406 (12 of 12: the
+# objects no longer sit in a slab the table's depth deep); the objects alone from 1 view (bench_pointcloud) 249.8 ->
+# 248.7, NC 0.722 -> 0.721, F1 0.350 either way; 3 and 6 views read closed (no limit). This bound at 2 / 4 / 8 nodes:
+# 1 view CD 248.7 / 248.7 / 249.8. Rerun: bench_scenes.py --shell-depth uniform.
 THINNEST_SHELL_NODES = 4.0
 # Where the depth limit meets the IMLS target's own far field (the winding number's level set, behind an open
 # scan's seen side), their crease is rounded over this many nodes of the field's grid (fields.smooth_maximum):
@@ -270,24 +264,22 @@ MIN_COVERAGE = 0.9
 # (the other 5, a third missing) within 2.5% CD and 0.01 F1 of each other, 0.97-1.0x the time.
 FIELD_REFINEMENT = 2
 MAX_FIELD_RESOLUTION = 160
-# The offset shell (sheet_surface) is tried when the target misses the points both ways: the points
-# lie on average over SHEET_POINTS_GATE median spacings from it, its surface over SHEET_SURFACE_GATE
-# from them. A lid with walls thinner than the spacing reads 0.37-0.62 and 4.2-6.6; clouds that come
-# out right read under 0.08 for the first (holes, real scans: their filled holes lie 6-67 spacings
-# from the points) or under 0.6 for the second (1% noise, 0.55). It replaces the target when its
-# misfit (mean distance points -> surface + surface -> points) is under SHEET_WIN times the target's
-# (the lid: 0.2-0.55). SHEET_SURFACE_GATE was 2.0 until the shell was closed back to the points
-# (SHEET_HUG; 2026-12-05): the lid abc_00000007 from 6 range views reads 0.15 and 1.80 and came out a
-# scaly IMLS solid, CD / NC / F1 62.2 / 0.730 / 0.507 against the shell's 2.27 / 0.923 / 0.604 (alpha
-# wrap 2.51); the cup abc_00000009 at 5k points (bench_thin_walls, grid auto) 165.2 -> 10.7. At 1.0
-# the shell is tried nowhere else on the 12 benchmark meshes x 12 conditions, the 4 scans and 16 more
-# meshes' range scans: past SHEET_POINTS_GATE those 144 clouds read 0.50-0.81 here (thingi32_252119
-# at 5k points; 1% noise 0.53-0.63): a thin margin. Of the 38 dev meshes at 10^5 clean points,
-# abc_00000001 alone passes the first gate, at 0.93 (its shell misfits by 2.59 spacings, a node thick
-# at this spacing, against the 0.74 it would need). The lid from 6 views passes SHEET_POINTS_GATE by
-# a hair (0.150 spacings). Two rules against one-sided scans each lost a lid (2026-12-05): the shell
-# only where points span a wall (wall_points) at 5k (walls 1.5 spacings thick read as none: CD 14.0
-# -> 445), only for clouds that read closed at 20k (37% of its signs wrong, level open: 5.1 -> 114).
+# The offset shell (sheet_surface) is tried when the target misses the points both ways: the points lie on average
+# over SHEET_POINTS_GATE median spacings from it, its surface over SHEET_SURFACE_GATE from them. A lid with walls
+# thinner than the spacing reads 0.37-0.62 and 4.2-6.6; clouds that come out right read under 0.08 for the first
+# (holes, real scans: their filled holes lie 6-67 spacings from the points) or under 0.6 for the second (1% noise,
+# 0.55). It replaces the target when its misfit (mean distance points -> surface + surface -> points) is under
+# SHEET_WIN times the target's (the lid: 0.2-0.55). SHEET_SURFACE_GATE was 2.0 until the shell was closed back to the
+# points (SHEET_HUG; 2026-12-05): the lid abc_00000007 from 6 range views reads 0.15 and 1.80 and came out a scaly
+# IMLS solid, CD / NC / F1 62.2 / 0.730 / 0.507 against the shell's 2.27 / 0.923 / 0.604 (alpha wrap 2.51); the cup
+# abc_00000009 at 5k points (bench_thin_walls, grid auto) 165.2 -> 10.7. At 1.0 the shell is tried nowhere else on the
+# 12 benchmark meshes x 12 conditions, the 4 scans and 16 more meshes' range scans: past SHEET_POINTS_GATE those 144
+# clouds read 0.50-0.81 here (thingi32_252119 at 5k points; 1% noise 0.53-0.63): a thin margin. Of the 38 dev meshes
+# at 10^5 clean points, abc_00000001 alone passes the first gate, at 0.93 (its shell misfits by 2.59 spacings, a node
+# thick at this spacing, against the 0.74 it would need). The lid from 6 views passes SHEET_POINTS_GATE by a hair
+# (0.150 spacings). Two rules against one-sided scans each lost a lid (2026-12-05): the shell only where points span a
+# wall (wall_points) at 5k (walls 1.5 spacings thick read as none: CD 14.0 -> 445), only for clouds that read closed
+# at 20k (37% of its signs wrong, level open: 5.1 -> 114).
 SHEET_POINTS_GATE = 0.15
 SHEET_SURFACE_GATE = 1.0
 # SHEET_WIN 0.65 -> 0.7 (2026-12-06): with the IMLS rims smoothed (surface.BAND_EDGE_BLUR_NODES) the
@@ -317,19 +309,17 @@ SHEET_SUPPORT = 0.78
 # fills the lid's groove). Landed, 1.6 and SHEET_HUG 0.16 (0.256 spacing): genus 1 / 1 / 16 / 0, CD /
 # NC 4.71 / 0.917, 2.59 / 0.932, 2.27 / 0.923, 3.45 / 0.976.
 SHEET_OFFSET = 1.6
-# The union of balls is closed back to this share of its offset from the points (fields.closing;
-# one-sided parts keep a node's half thickness): a quarter spacing at SHEET_OFFSET. CD / NC / F1 at
-# grid 64 (2026-12-05, offset 1.25 spacings), the offset shell -> closed at 0.5 / 0.35 / 0.2 / 0.1
-# / 0 (distances to the shell's vertices; exact ones at 0.2: the lid 3.10 / 2.21 / 2.29, the cup
-# 3.14 / 0.962 / 0.416; landed: 0.16 of an offset of 1.6, SHEET_OFFSET above):
-#   lid abc_00000007 5k points: 47.8 / 0.915 / 0.000 -> 8.79, 5.83, 3.18 / 0.910 / 0.539, 2.99, 3.33
-#   lid 20k points: 14.7 / 0.937 / 0.003 -> 4.32, 2.96, 2.33 / 0.929 / 0.603, 2.26, 2.30
-#   lid from 6 range views (the shell forced): 8.22 / 0.933 / 0.044 -> 2.87, 2.41, 2.29 / 0.917 / 0.592, 2.29, 2.29
-#   cup abc_00000009 5k points (forced): 80.4 / 0.962 / 0.000 -> 6.74, 6.74, 3.27 / 0.960 / 0.369, 3.37, 4.12
-# NC falls as the share does (lid 5k 0.919, 0.919, 0.910, 0.899, 0.885). On 6 other dev meshes (bunny,
-# fandisk, armadillo, thingi32_252119, abc_00000001, nmc_sample0) x clean 5k / 20k, the shell forced,
-# a node's offset everywhere -> 0.2: CD lower on 11 of 12 (mean 8.0 -> 5.2), F1 higher on all 12
-# (0.107 -> 0.346), NC -0.003 to -0.043 (mean -0.018).
+# The union of balls is closed back to this share of its offset from the points (fields.closing; one-sided parts keep
+# a node's half thickness): a quarter spacing at SHEET_OFFSET. CD / NC / F1 at grid 64 (2026-12-05, offset 1.25
+# spacings), the offset shell -> closed at 0.5 / 0.35 / 0.2 / 0.1 / 0 (distances to the shell's vertices; exact ones
+# at 0.2: the lid 3.10 / 2.21 / 2.29, the cup 3.14 / 0.962 / 0.416; landed: 0.16 of an offset of 1.6, SHEET_OFFSET
+# above):   lid abc_00000007 5k points: 47.8 / 0.915 / 0.000 -> 8.79, 5.83, 3.18 / 0.910 / 0.539, 2.99, 3.33   lid 20k
+# points: 14.7 / 0.937 / 0.003 -> 4.32, 2.96, 2.33 / 0.929 / 0.603, 2.26, 2.30   lid from 6 range views (the shell
+# forced): 8.22 / 0.933 / 0.044 -> 2.87, 2.41, 2.29 / 0.917 / 0.592, 2.29, 2.29   cup abc_00000009 5k points (forced):
+# 80.4 / 0.962 / 0.000 -> 6.74, 6.74, 3.27 / 0.960 / 0.369, 3.37, 4.12 NC falls as the share does (lid 5k 0.919,
+# 0.919, 0.910, 0.899, 0.885). On 6 other dev meshes (bunny, fandisk, armadillo, thingi32_252119, abc_00000001,
+# nmc_sample0) x clean 5k / 20k, the shell forced, a node's offset everywhere -> 0.2: CD lower on 11 of 12 (mean 8.0
+# -> 5.2), F1 higher on all 12 (0.107 -> 0.346), NC -0.003 to -0.043 (mean -0.018).
 SHEET_HUG = 0.16
 # A cloud's mesh is refused by voro3d.reconstruct, not returned, when it encloses more than this many times the volume
 # of the points' convex hull, or when the median point lies more than this many voxels off it beyond
@@ -346,21 +336,19 @@ MAX_MEDIAN_DISTANCE = 1.0
 # meshes (Poisson depth 7 meshes of them, 2026-12-04): volume ratio within 0.2%, median distance within
 # 0.3%; 0.14-0.17 s instead of 1.5-2.0 s.
 CHECK_POINTS = 100_000
-# Lines of sight (voro3d.pointcloud.sightlines): a point is seen from within SIGHT_ANGLE degrees of
-# its normal (the range scans of bench_pointcloud drop hits beyond 75 degrees), tested along
-# SIGHT_LINES lines of that cone; a line crossing only surface more than SIGHT_GAP median spacings
-# from every point crosses a closure; every k-th point is tested, at most SIGHT_POINTS. A target is
-# carved where more than MIN_REVEALING of the tested points are hidden with such a line. Shares on the
-# 28 dev meshes of bench_pointcloud's two range tables (30k points, grid 64; 2026-12-04), carved or not:
-# 6 views, the cup abc_00000009 3.8%, the cap abc_00000006 0.65%, cad_nmc_sample0 0.75%, carved: CD
-# 155 / 85 / 87 -> 4.8 / 22.5 / 25.6 (alpha wrap 7.0 / 32.9 / 33.5), NC +0.004 to +0.010, F1 0.52 / 0.63 /
-# 0.63 -> 0.58 / 0.53 / 0.52 (the unseen inner walls sit a guessed wall off); the rest 0-0.013%. 3 views:
-# thingi32_252119 0.95% carved (CD 23.6 -> 15.3, NC 0.825 -> 0.807, F1 0.717 -> 0.646); the rest 0-0.47%
-# (the cup 0.39%: carved at 0.2%, CD 130 -> 45). A third missing, where points were sampled, not seen,
-# and the assumption fails: abc_00000001 3.97% (CD 409 -> 411, NC 0.785 -> 0.802), thingi32_252119 2.0%
-# (CD 341 -> 350, NC 0.792 -> 0.783, F1 0.695 -> 0.629) and organic_cheburashka 0.69% (CD 283 -> 477,
-# NC 0.918 -> 0.859: the carve opens the solid behind the cut) carved; the other 25 at 0-0.44%. The 12
-# benchmark meshes' other 8 conditions: never carved.
+# Lines of sight (voro3d.pointcloud.sightlines): a point is seen from within SIGHT_ANGLE degrees of its normal (the
+# range scans of bench_pointcloud drop hits beyond 75 degrees), tested along SIGHT_LINES lines of that cone; a line
+# crossing only surface more than SIGHT_GAP median spacings from every point crosses a closure; every k-th point is
+# tested, at most SIGHT_POINTS. A target is carved where more than MIN_REVEALING of the tested points are hidden with
+# such a line. Shares on the 28 dev meshes of bench_pointcloud's two range tables (30k points, grid 64; 2026-12-04),
+# carved or not: 6 views, the cup abc_00000009 3.8%, the cap abc_00000006 0.65%, cad_nmc_sample0 0.75%, carved: CD 155
+# / 85 / 87 -> 4.8 / 22.5 / 25.6 (alpha wrap 7.0 / 32.9 / 33.5), NC +0.004 to +0.010, F1 0.52 / 0.63 / 0.63 -> 0.58 /
+# 0.53 / 0.52 (the unseen inner walls sit a guessed wall off); the rest 0-0.013%. 3 views: thingi32_252119 0.95%
+# carved (CD 23.6 -> 15.3, NC 0.825 -> 0.807, F1 0.717 -> 0.646); the rest 0-0.47% (the cup 0.39%: carved at 0.2%, CD
+# 130 -> 45). A third missing, where points were sampled, not seen, and the assumption fails: abc_00000001 3.97% (CD
+# 409 -> 411, NC 0.785 -> 0.802), thingi32_252119 2.0% (CD 341 -> 350, NC 0.792 -> 0.783, F1 0.695 -> 0.629) and
+# organic_cheburashka 0.69% (CD 283 -> 477, NC 0.918 -> 0.859: the carve opens the solid behind the cut) carved; the
+# other 25 at 0-0.44%. The 12 benchmark meshes' other 8 conditions: never carved.
 SIGHT_ANGLE = 70.0
 SIGHT_LINES = 32
 SIGHT_GAP = 6.0
@@ -427,21 +415,35 @@ CLOUD_REFRESH_VOXELS = 2.5
 SUSPECT_FLATNESS = 0.1
 SUSPECT_OFFSET = 0.15
 # Statistics of large clouds are medians or means over a random subset of this many points
-# (:func:`~voro3d.queries.knn_blocks`): the noise and fine noise (cloud_stats) and the local dimension
-# over STATISTICS_SAMPLE, the sign disagreement of given normals over SIGN_SAMPLE (16 pairs a point).
-# 4 dev meshes (bunny, fandisk, armadillo, abc_00000005) at 10^6 points, clean and at 0.5% noise,
-# subset against every point: noise within 0.1% (fine noise 0.5%; fandisk's and abc's clean noise,
-# under 1e-7, within 2%), dimension within 0.08%, sign disagreement with 5% of the normals flipped
-# within 0.0009 of 0.095 (true normals: within 0.0001); cloud_stats 2.5-4.8 s instead of 8-10 s
-# (those figures with subsets of 200k and 100k). Clouds up to these sizes use every point.
-# STATISTICS_SAMPLE 50k: the same 4 meshes at 10^5 points, clean and at 0.25% noise, read noise within
-# 1% of every point's, and their clean 100k / density ramp 20x / 2% outliers outputs are unchanged
-# (CD, NC, F1 to 4 digits); the clean phase 0.54-0.79 s instead of 0.83-1.36 s.
-# SIGN_SAMPLE 20k: the sign disagreement only decides against MAX_SIGN_DISAGREEMENT; on those meshes at
-# 10^5 points (true normals, 5% flipped, Open3D's estimate_normals()) it reads within 0.0018 of every
-# point's (0 / 0.0045-0.062 / 0.130-0.150), in 0.1 s instead of 0.4-0.8 s.
+# (:func:`~voro3d.queries.knn_blocks`): the noise and fine noise (cloud_stats) and the local dimension over
+# STATISTICS_SAMPLE, the sign disagreement of given normals over SIGN_SAMPLE (16 pairs a point). 4 dev meshes (bunny,
+# fandisk, armadillo, abc_00000005) at 10^6 points, clean and at 0.5% noise, subset against every point: noise within
+# 0.1% (fine noise 0.5%; fandisk's and abc's clean noise, under 1e-7, within 2%), dimension within 0.08%, sign
+# disagreement with 5% of the normals flipped within 0.0009 of 0.095 (true normals: within 0.0001); cloud_stats
+# 2.5-4.8 s instead of 8-10 s (those figures with subsets of 200k and 100k). Clouds up to these sizes use every point.
+# STATISTICS_SAMPLE 50k: the same 4 meshes at 10^5 points, clean and at 0.25% noise, read noise within 1% of every
+# point's, and their clean 100k / density ramp 20x / 2% outliers outputs are unchanged (CD, NC, F1 to 4 digits); the
+# clean phase 0.54-0.79 s instead of 0.83-1.36 s. SIGN_SAMPLE 20k: the sign disagreement only decides against
+# MAX_SIGN_DISAGREEMENT; on those meshes at 10^5 points (true normals, 5% flipped, Open3D's estimate_normals()) it
+# reads within 0.0018 of every point's (0 / 0.0045-0.062 / 0.130-0.150), in 0.1 s instead of 0.4-0.8 s.
 STATISTICS_SAMPLE = 50_000
 SIGN_SAMPLE = 20_000
+# A cloud sampled along lines far apart for their spacing along them (a LiDAR's scan lines) is thinned along them
+# (scanlines.thin_lines) while the median middle-over-largest eigenvalue of its 9-point neighbourhoods, read at every
+# k-th point (at most LINE_SAMPLE: within 0.003 of every point's on 12k-100k-point clouds, 0.025 s against 0.48 s at
+# 10^5), is under LINE_RATIO. It reads 0.40-0.67 on every cloud of the 38 dev meshes x the benchmark's 24 conditions
+# (lowest: sparse 300, 0.399) and on the 4 real scans (0.41-0.47); 0.003-0.03 on LiDAR scans whose lines lie 5 to 50
+# times as far apart as the steps along them; 0.33-0.36 at 4 times, where the bunny needs no thinning (NC 0.912
+# unthinned, 0.910 thinned). 12 benchmark meshes from a 48-beam LiDAR (lines 10x apart; bench_pointcloud "lidar"),
+# grid 64, thinned against not (--line-ratio 0), 2026-12-07: 3 positions CD 89.5 -> 33.2, NC 0.665 -> 0.880, F1 0.329
+# -> 0.582, 4.2 -> 2.8 s a cloud; 1 position CD 1065 -> 988, NC 0.594 -> 0.712, F1 0.180 -> 0.265; unthinned the
+# surfaces come apart in strips along the lines. A bunny from 16 beams (50x): NC 0.586 -> 0.792. Cubes of the mean
+# 8-neighbour distance instead of twice the nearest one (one round, fewer points left), 4 of those meshes from 3
+# positions at grid auto: CD 73.3 / 11.6 / 78.5 / 83.2 against 76.2 / 7.9 / 74.0 / 76.7, NC within 0.009 either way.
+# THIN_ROUNDS only bounds the loop on points along a true curve (a wire), which no round makes two-dimensional.
+LINE_RATIO = 0.1
+LINE_SAMPLE = 5_000
+THIN_ROUNDS = 6
 # Clouds of more than TILE_POINTS distinct points are reconstructed from a uniform subset of
 # ANALYSIS_POINTS (statistics, normals, the target at MAX_TARGET_GRID, the samples) and fitted in
 # tiles of at most TILE_SAMPLES samples (voro3d.pointcloud.tiles); TILE_MARGIN: coarsest voxels of
@@ -461,18 +463,16 @@ TILE_MARGIN = 2.0
 SEAM_WIDTH = 1.0
 SEAM_STEPS = 100
 # A Poisson target of at least SPLIT_POINTS points is solved in two halves at once, in two processes
-# (voro3d.pointcloud.poisson.poisson_surface: Open3D's solver must run on one thread to repeat
-# exactly, and holds the interpreter). poisson_surface alone at depth 8, whole against split with
-# a started helper (2026-12-04, shared machine): armadillo 30k / 50k / 70k / 100k points 2.97 /
-# 4.41 / 4.50 / 5.13 s -> 2.14 / 3.36 / 3.73 / 4.31 s, bunny 1.92 / 4.80 / 7.39 / 9.65 -> 1.97 /
-# 5.16 / 5.45 / 6.78 s; the helper's start (importing Open3D, about 1 s of the other core) is paid
-# whether or not the target turns out to be Poisson, so only from here on. Whole reconstruct, fresh
-# processes, old and new interleaved in one session (load 1.3-1.9): 10^5 true-normal points,
-# bunny / armadillo / fandisk / abc_00000005 15.6 / 12.4 / 12.0 / 9.8 -> 13.6 / 12.0 / 11.0 / 9.0 s
-# (summed 0.92x; against Poisson depth 8 alone 3.42x -> 3.13x); the same without normals, grid 64,
-# bunny / armadillo / fandisk 13.4 / 10.2 / 10.5 -> 11.6 / 10.1 / 9.8 s (0.92x); 10^6 points
-# (margin 8) armadillo 49.6 -> 41.1 s, bunny 54.1 -> 48.0 s. All 38 dev meshes at 10^5 points
-# without normals (pointcloud_dense38): CD 0.6588 -> 0.6557, NC 0.9821 both, F1 0.9382 -> 0.9381.
+# (voro3d.pointcloud.poisson.poisson_surface: Open3D's solver must run on one thread to repeat exactly, and holds the
+# interpreter). poisson_surface alone at depth 8, whole against split with a started helper (2026-12-04, shared
+# machine): armadillo 30k / 50k / 70k / 100k points 2.97 / 4.41 / 4.50 / 5.13 s -> 2.14 / 3.36 / 3.73 / 4.31 s, bunny
+# 1.92 / 4.80 / 7.39 / 9.65 -> 1.97 / 5.16 / 5.45 / 6.78 s; the helper's start (importing Open3D, about 1 s of the
+# other core) is paid whether or not the target turns out to be Poisson, so only from here on. Whole reconstruct,
+# fresh processes, old and new interleaved in one session (load 1.3-1.9): 10^5 true-normal points, bunny / armadillo /
+# fandisk / abc_00000005 15.6 / 12.4 / 12.0 / 9.8 -> 13.6 / 12.0 / 11.0 / 9.0 s (summed 0.92x; against Poisson depth 8
+# alone 3.42x -> 3.13x); the same without normals, grid 64, bunny / armadillo / fandisk 13.4 / 10.2 / 10.5 -> 11.6 /
+# 10.1 / 9.8 s (0.92x); 10^6 points (margin 8) armadillo 49.6 -> 41.1 s, bunny 54.1 -> 48.0 s. All 38 dev meshes at
+# 10^5 points without normals (pointcloud_dense38): CD 0.6588 -> 0.6557, NC 0.9821 both, F1 0.9382 -> 0.9381.
 SPLIT_POINTS = 60_000
 # Each half takes the points up to this many octree cells past the cut. Against the surface solved
 # whole (armadillo and fandisk, 10^5 points, depth 8), the halves' vertices lie at most 0.28-0.40
@@ -484,17 +484,15 @@ SPLIT_POINTS = 60_000
 # within 0.0012): a tiny change of the target moves the fit by as much, and the widest margin is the
 # safest where a hole crosses the cut.
 SPLIT_MARGIN_CELLS = 16
-# Thin walls sampled on both sides (preprocess.two_sheets, wall_points): where a plane fit spans both
-# sides of a wall (at 20k points the cup abc_00000009's 16-neighbour fits are 27.8 degrees off the
-# true normals, 1.0-1.2 with 6-8 neighbours; bench_thin_walls), the plane of the 8 nearest gives the
-# normal's axis and the noise. The far sheet needs TWO_SHEET_POINTS points and must stand
-# TWO_SHEET_CLEARANCE times the near part's scatter off its plane (noisy clouds read two sheets at
-# 6-7% of their points instead of 16-20% without it). A point counts only where WALL_VOTE of its 16
-# nearest read two sheets too (a wall runs on; noise is speckle). Share of the points, 24-neighbour
-# test alone -> with the vote, the 12 benchmark meshes without normals: 0.25-1% noise 1.2-13.3% ->
-# 0-0.5%; clean 5k 12.8-29.7% -> 3.3-15.9%; clean 20k 5.2-24.5% -> 1.8-6.9%; range scans 1.4-23.4% ->
-# 0.5-8.7%; the cup at 20k 71.3% -> 68.2%, the lid abc_00000007 34.3% -> 19.5%, a tube 2 spacings
-# thick at 30k points (tests) 87.5% -> 85.6%.
+# Thin walls sampled on both sides (preprocess.two_sheets, wall_points): where a plane fit spans both sides of a wall
+# (at 20k points the cup abc_00000009's 16-neighbour fits are 27.8 degrees off the true normals, 1.0-1.2 with 6-8
+# neighbours; bench_thin_walls), the plane of the 8 nearest gives the normal's axis and the noise. The far sheet needs
+# TWO_SHEET_POINTS points and must stand TWO_SHEET_CLEARANCE times the near part's scatter off its plane (noisy clouds
+# read two sheets at 6-7% of their points instead of 16-20% without it). A point counts only where WALL_VOTE of its 16
+# nearest read two sheets too (a wall runs on; noise is speckle). Share of the points, 24-neighbour test alone -> with
+# the vote, the 12 benchmark meshes without normals: 0.25-1% noise 1.2-13.3% -> 0-0.5%; clean 5k 12.8-29.7% ->
+# 3.3-15.9%; clean 20k 5.2-24.5% -> 1.8-6.9%; range scans 1.4-23.4% -> 0.5-8.7%; the cup at 20k 71.3% -> 68.2%, the
+# lid abc_00000007 34.3% -> 19.5%, a tube 2 spacings thick at 30k points (tests) 87.5% -> 85.6%.
 TWO_SHEET_POINTS = 2
 TWO_SHEET_CLEARANCE = 4.0
 WALL_VOTE = 0.5
