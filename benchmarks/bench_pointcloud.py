@@ -8,7 +8,7 @@ depth camera's frame, ~300k points (``dense range scan 1 view``) and range scans
 viewpoints with a consumer depth sensor's noise (``noisy range scan ...``), from 3 and 6 whose views
 registration left a little apart (``misaligned range scan ...``), and from 1 and 3 with a time-of-flight
 camera's flying pixels at depth edges (``flying pixels range scan ...``), a spinning LiDAR's scan lines
-from 1 and 3 positions (``lidar ...``, ``lidar_scan``), and clouds of 300 to 5k points (``sparse ...``).
+from 1 and 3 positions (``lidar ...``, ``lidar_scan``; ``dense lidar ...`` only when named), and clouds of 300 to 5k points (``sparse ...``).
 On each cloud:
 
 * VoroMesh: ``voro3d.pointcloud.reconstruct_points`` at ``--grid`` (outlier removal, normals,
@@ -67,6 +67,7 @@ CONDITIONS = {
     "flying pixels range scan 3 views": ("flying range", 30_000, 3),
     "lidar 1 position": ("lidar", 0, 1),
     "lidar 3 positions": ("lidar", 0, 3),
+    "dense lidar 3 positions": ("dense lidar", 0, 3),
     "sparse 300": ("clean", 300, 0.0),
     "sparse 600": ("clean", 600, 0.0),
     "sparse 1k": ("clean", 1_000, 0.0),
@@ -103,6 +104,9 @@ FLYING_DEPTH = 0.1
 # radians above its centre; grazing hits dropped and depth noise as the range scanner's.
 LIDAR_BEAMS = 48
 LIDAR_STEPS = 480
+# The "dense lidar" kind: a 128-beam sensor's lines, 20x as far apart as its steps, its depth noise as wide as a step.
+DENSE_LIDAR_BEAMS = 128
+DENSE_LIDAR_STEPS = 2560
 LIDAR_DISTANCE = 2.5
 LIDAR_ELEVATION = 0.25
 COLOURED = "clean 20k"
@@ -134,8 +138,9 @@ def make_cloud(mesh, condition: str, *, seed: int = 0) -> np.ndarray:
                           noise=NOISY_RANGE_NOISE if kind == "noisy range" else RANGE_NOISE,
                           misalign=(MISALIGN_DEGREES, MISALIGN_SHIFT) if kind == "misaligned range" else None,
                           flying=FLYING_SHARE if kind == "flying range" else 0.0)
-    if kind == "lidar":
-        return lidar_scan(vertices, triangles, parameter, rng)
+    if kind.endswith("lidar"):
+        lines = (DENSE_LIDAR_BEAMS, DENSE_LIDAR_STEPS) if kind == "dense lidar" else (LIDAR_BEAMS, LIDAR_STEPS)
+        return lidar_scan(vertices, triangles, parameter, rng, *lines)
     if kind == "ramp":
         points, _ = sample_surface((vertices, triangles), 4 * n, seed=seed)
         along = (points[:, 0] - points[:, 0].min()) / np.ptp(points[:, 0])
@@ -209,10 +214,10 @@ def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS
     return points[rng.permutation(len(points))[:n]]
 
 
-def lidar_scan(vertices, triangles, positions: int, rng) -> np.ndarray:
+def lidar_scan(vertices, triangles, positions: int, rng, beams: int = LIDAR_BEAMS, steps: int = LIDAR_STEPS) -> np.ndarray:
     """Points a spinning LiDAR sees from ``positions`` places spread in longitude around the shape:
-    ``LIDAR_BEAMS`` lines of elevation, each swept in ``LIDAR_STEPS`` steps of azimuth, both spans
-    covering the shape's bounding sphere; every hit kept (all of them: the lines are the point)."""
+    ``beams`` lines of elevation, each swept in ``steps`` steps of azimuth, both spans covering the
+    shape's bounding sphere; every hit kept (all of them: the lines are the point)."""
     import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
@@ -227,8 +232,7 @@ def lidar_scan(vertices, triangles, positions: int, rng) -> np.ndarray:
         right /= np.linalg.norm(right)
         up = np.cross(right, forward)
         half = np.arcsin(0.5 * diagonal / np.linalg.norm(centre - eye))
-        elevation, azimuth = np.meshgrid(np.linspace(-half, half, LIDAR_BEAMS), np.linspace(-half, half, LIDAR_STEPS),
-                                         indexing="ij")
+        elevation, azimuth = np.meshgrid(np.linspace(-half, half, beams), np.linspace(-half, half, steps), indexing="ij")
         directions = ((np.cos(elevation) * np.cos(azimuth))[..., None] * forward
                       + (np.cos(elevation) * np.sin(azimuth))[..., None] * right
                       + np.sin(elevation)[..., None] * up).reshape(-1, 3)
@@ -786,9 +790,9 @@ def main():
     if args.auto_width is not None:
         resolution_module.AUTO_SPACINGS_PER_VOXEL = args.auto_width
     if args.line_ratio is not None:
-        import voro3d.pointcloud.preprocess as preprocess_module
+        import voro3d.pointcloud.scanlines as scanlines_module
 
-        preprocess_module.LINE_RATIO = args.line_ratio
+        scanlines_module.LINE_RATIO = args.line_ratio
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)

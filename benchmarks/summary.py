@@ -355,16 +355,20 @@ A spinning LiDAR's scan lines, on the 12 benchmark meshes, all three methods in 
 `--conditions "lidar 1 position" "lidar 3 positions" --alpha-wrap`): 48 lines of elevation, each swept
 in 480 steps of azimuth across the shape (the lines 10x as far apart as the steps along them, as a
 16-beam sensor's 2 degrees against its 0.2), from 1 or 3 positions 2.5 diagonals away (`lidar_scan`).
-Such a point's 8 nearest neighbours all lie on its own line: until `scanlines.thin_lines` the plane
-fits turned about the lines and every surface came apart in strips along them. Thinned along the
-lines (plan `thin`; auto below `LINE_RATIO`, which no other benchmark cloud and no real scan comes
-near), VoroMesh has the lower CD and the higher NC and F1 than Open3D's pipeline from 1 and 3
-positions, and the lower CD than `alpha_wrap_3` from both and the higher NC from 3 (0.880 against
-0.833), **but not alpha wrap's F1** (0.582 against 0.598 from 3 positions, 0.265 against 0.325 from 1)
-nor its NC from 1 (0.712 against 0.746). The same clouds unthinned (`--line-ratio 0 --no-poisson`):
-3 positions CD 89.5, NC 0.665, F1 0.329, 4.2 s a cloud; 1 position 1065, 0.594, 0.180. Every output
-closed; from 3 positions the cow comes in 3 pieces (its legs, which few lines cross) and the elephant
-in 2. 3.5x Open3D's pipeline's time (2.8-3.1 s a cloud against 0.6-1.1 s).""",
+Such a point's nearest neighbours all lie on its own line: until `scanlines.thin_lines` the plane fits
+turned about the lines and every surface came apart in strips along them. Thinned along the lines
+(plan `thin`; auto below `LINE_RATIO`, which no other benchmark cloud and no real scan comes near),
+VoroMesh has the lower CD and the higher NC and F1 than Open3D's pipeline from 1 and 3 positions, and
+the lower CD than `alpha_wrap_3` from both and the higher NC from 3 (0.880 against 0.833), **but not
+alpha wrap's F1** (0.582 against 0.598 from 3 positions, 0.265 against 0.325 from 1) nor its NC from 1
+(0.712 against 0.746). The same clouds unthinned (`--line-ratio 0 --no-poisson`): 3 positions CD 89.5,
+NC 0.665, F1 0.329, 4.2 s a cloud; 1 position 1065, 0.594, 0.180. *Dense lidar* (VoroMesh and alpha
+wrap only: Open3D's orientation of 70k-204k points was not run): a 128-beam sensor's lines, 20x as far
+apart as its steps, with depth noise as wide as a step, which spreads the 9 nearest points across their
+line, so the lines are read over the 25 nearest too; unthinned CD 134.4, NC 0.645, F1 0.302, 6.9 s a
+cloud. Every output closed; from 3 positions the cow comes in 3 pieces (its legs, which few lines
+cross) and the elephant in 2. 3.3x Open3D's pipeline's time where both ran (3.0-3.2 s a cloud against
+0.7-1.2 s).""",
     "pointcloud_scanner_artifacts": """\
 Two faults of merged real scans, on the 12 benchmark meshes, all three methods in one run (2026-12-07,
 `--conditions "misaligned range scan 3 views" ... --alpha-wrap`). *Misaligned*: each view moved by its

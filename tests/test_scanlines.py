@@ -29,6 +29,17 @@ def test_line_ratio_tells_scan_lines_from_an_even_sampling():
     assert line_ratio(lines, cKDTree(lines))[0] < 0.02 < 0.4 < line_ratio(even, cKDTree(even))[0]
 
 
+def test_line_ratio_reads_noisy_lines_over_wider_neighbourhoods(monkeypatch):
+    """Rings 26 steps apart with noise as wide as a step: the 9 nearest points spread across their
+    ring (0.15 over them alone), the 25 nearest still lie along it."""
+    import voro3d.pointcloud.scanlines as scanlines
+
+    points = _rings(8, 600)[0] + 0.008 * np.random.default_rng(0).normal(size=(4800, 3))
+    assert line_ratio(points, cKDTree(points))[0] < 0.05
+    monkeypatch.setattr(scanlines, "NOISE_NEIGHBOURS", scanlines.SPACING_NEIGHBOURS)
+    assert line_ratio(points, cKDTree(points))[0] > LINE_RATIO
+
+
 def test_thinning_stops_once_the_neighbourhoods_are_two_dimensional():
     points, normals = _rings()
     thinned, averaged, rounds = thin_lines(points, normals, tree=cKDTree(points))

@@ -29,10 +29,10 @@ the points define (``voro3d/pointcloud/``):
    as in 3: points in a volume have no plane at the spacing's scale; sampled surfaces read about 2
    and under 0.25, though a clean sparse slab reads like a volume on those two) is refused.
    Repeated points (merged scans) are merged first, their normals and colours averaged; points
-   on scan lines far apart for their spacing along them (a LiDAR's: their 8 nearest neighbours
-   lie on one line) are thinned along the lines until they do not (``scanlines.thin_lines``,
+   on scan lines far apart for their spacing along them (a LiDAR's: their 8 or 24 nearest
+   neighbours lie on one line) are thinned along the lines until they do not (``scanlines``,
    plan ``thin``: unthinned, the plane fits turn about the lines and the surface comes apart in
-   strips; 12 dev meshes from a 48-beam LiDAR at 3 positions, NC 0.66 -> 0.88); objects
+   strips; 12 dev meshes from a 48-beam LiDAR at 3 positions, NC 0.665 -> 0.880); objects
    far apart (pieces of the neighbour graph whose boxes, grown by half their diagonal, do not
    overlap) are reconstructed one by one, each at its own grid (``separate_objects``: two unit
    spheres 50 apart gave 216 faces in all on one grid).

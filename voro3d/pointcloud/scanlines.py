@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .preprocess import SPACING_NEIGHBOURS, group_means, stride
+from .preprocess import NOISE_NEIGHBOURS, SPACING_NEIGHBOURS, group_means, stride
 from .tuning import LINE_RATIO, LINE_SAMPLE, THIN_ROUNDS
 
 __all__ = ["line_ratio", "thin_lines"]
@@ -19,15 +19,21 @@ def line_ratio(points: np.ndarray, tree) -> tuple[float, float]:
     """How one-dimensional the neighbourhoods of ``(n, 3)`` points (their cKDTree ``tree``) are, and their spacing.
 
     Over every k-th point, at most ``LINE_SAMPLE``: the median of the middle over the largest covariance eigenvalue of
-    its ``SPACING_NEIGHBOURS + 1`` nearest points (itself first), and the median distance to its nearest one. A surface
-    sampled evenly reads 0.44-0.67 (the dev clouds, range scans included); one sampled along lines far apart for their
-    spacing along them (a LiDAR's scan lines) under 0.03, its nearest points all on its own line.
+    its ``SPACING_NEIGHBOURS + 1`` nearest points (itself first), and of its ``NOISE_NEIGHBOURS + 1``, the lower of the
+    two; and the median distance to its nearest point. A surface sampled evenly reads 0.40 or more (the dev clouds,
+    range scans included); one sampled along lines far apart for their spacing along them (a LiDAR's scan lines) under
+    0.05, its nearest points all on its own line: the 9 nearest where the lines lie 5-10 steps apart, the 25 nearest
+    where depth noise as wide as a step spreads the 9 across their line.
     """
     tested = points[::stride(len(points), LINE_SAMPLE)]
-    distance, neighbour = tree.query(tested, k=min(SPACING_NEIGHBOURS + 1, len(points)), workers=-1)
-    local = points[neighbour] - points[neighbour].mean(axis=1, keepdims=True)
-    values = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", local, local))
-    return float(np.median(values[:, 1] / np.maximum(values[:, 2], 1e-300))), float(np.median(distance[:, 1]))
+    distance, neighbour = tree.query(tested, k=min(NOISE_NEIGHBOURS + 1, len(points)), workers=-1)
+    ratios = []
+    for count in (SPACING_NEIGHBOURS + 1, NOISE_NEIGHBOURS + 1):
+        near = points[neighbour[:, :count]]
+        local = near - near.mean(axis=1, keepdims=True)
+        values = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", local, local))
+        ratios.append(float(np.median(values[:, 1] / np.maximum(values[:, 2], 1e-300))))
+    return min(ratios), float(np.median(distance[:, 1]))
 
 
 def thin_lines(points: np.ndarray, *attributes, tree, force: bool = False, min_points: int = 1):

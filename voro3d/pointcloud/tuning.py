@@ -400,18 +400,17 @@ CLOUD_SAMPLES_PER_FACE = 75
 # 3-view range scans: searches 4-6 -> 2-3, fit CPU 0.61-1.04x; mean CD -0.1% / +0.5% / 0.0% (worst
 # +1.1%, on noise), NC at worst -0.0010 / -0.0008 / -0.0020.
 CLOUD_REFRESH_VOXELS = 2.5
-# A point the outlier tests suspect (preprocess.outlier_mask: sparse, or a stray) stays when it and its
-# 20 neighbours lie within SUSPECT_FLATNESS of their in-plane spread (RMS) of one plane, itself within
-# SUSPECT_OFFSET (the centre of a curved patch sits off the patch's plane by about twice its RMS): a
-# part of the surface sampled far more sparsely than the rest. Suspects kept, over the 12 benchmark
-# meshes, flatness 0.1 and offset 0.1 / 0.15 / 0.2: the uniform outliers of "outliers 2%" 0 / 1 / 1
-# of 10,359 (both at 0.15: 33); 1% noise 0 of 234; the dev scan radar.xyz (a sphere sampled 100
-# times more densely in places) 476 / 490 / 496 of 502; a unit sphere of 150k points with a cap
-# sampled 100 times more sparsely 420 / 487 / 487 of 487 (45k points, cap spacing 0.36 of the
-# radius: 47 / 101 / 115 of 149); 1-view range scans 38 / 41 / 45 of 100 (grazing silhouettes).
-# Mean distance from the scan points to the mesh, in diagonals, before -> after (with the clumps of
-# _small_clusters kept when among the rest): radar 2.99e-3 (1,147 points dropped, a side left open)
-# -> 1.26e-4 (12 dropped, closed; Poisson 6.06e-4), hippo2 8.96e-4 -> 5.43e-4 (Poisson 7.08e-4).
+# A point the outlier tests suspect (preprocess.outlier_mask: sparse, or a stray) stays when it and its 20 neighbours
+# lie within SUSPECT_FLATNESS of their in-plane spread (RMS) of one plane, itself within SUSPECT_OFFSET (the centre of
+# a curved patch sits off the patch's plane by about twice its RMS): a part of the surface sampled far more sparsely
+# than the rest. Suspects kept, over the 12 benchmark meshes, flatness 0.1 and offset 0.1 / 0.15 / 0.2: the uniform
+# outliers of "outliers 2%" 0 / 1 / 1 of 10,359 (both at 0.15: 33); 1% noise 0 of 234; the dev scan radar.xyz (a
+# sphere sampled 100 times more densely in places) 476 / 490 / 496 of 502; a unit sphere of 150k points with a cap
+# sampled 100 times more sparsely 420 / 487 / 487 of 487 (45k points, cap spacing 0.36 of the radius: 47 / 101 / 115
+# of 149); 1-view range scans 38 / 41 / 45 of 100 (grazing silhouettes). Mean distance from the scan points to the
+# mesh, in diagonals, before -> after (with the clumps of _small_clusters kept when among the rest): radar 2.99e-3
+# (1,147 points dropped, a side left open) -> 1.26e-4 (12 dropped, closed; Poisson 6.06e-4), hippo2 8.96e-4 -> 5.43e-4
+# (Poisson 7.08e-4).
 SUSPECT_FLATNESS = 0.1
 SUSPECT_OFFSET = 0.15
 # Statistics of large clouds are medians or means over a random subset of this many points
@@ -429,12 +428,16 @@ SUSPECT_OFFSET = 0.15
 STATISTICS_SAMPLE = 50_000
 SIGN_SAMPLE = 20_000
 # A cloud sampled along lines far apart for their spacing along them (a LiDAR's scan lines) is thinned along them
-# (scanlines.thin_lines) while the median middle-over-largest eigenvalue of its 9-point neighbourhoods, read at every
-# k-th point (at most LINE_SAMPLE: within 0.003 of every point's on 12k-100k-point clouds, 0.025 s against 0.48 s at
-# 10^5), is under LINE_RATIO. It reads 0.40-0.67 on every cloud of the 38 dev meshes x the benchmark's 24 conditions
-# (lowest: sparse 300, 0.399) and on the 4 real scans (0.41-0.47); 0.003-0.03 on LiDAR scans whose lines lie 5 to 50
-# times as far apart as the steps along them; 0.33-0.36 at 4 times, where the bunny needs no thinning (NC 0.912
-# unthinned, 0.910 thinned). 12 benchmark meshes from a 48-beam LiDAR (lines 10x apart; bench_pointcloud "lidar"),
+# (scanlines.thin_lines) while the median middle-over-largest eigenvalue of its 9-point neighbourhoods, or of its
+# 25-point ones, read at every k-th point (at most LINE_SAMPLE: within 0.003 of every point's on 12k-100k-point clouds
+# (9 points), 0.025 s against 0.48 s at 10^5), is under LINE_RATIO. The lower of the two reads 0.40-0.67 on every
+# cloud of the 38 dev meshes x the benchmark's 24 other conditions (lowest: sparse 300, 0.399) and on the 4 real scans
+# (0.41-0.47); 0.002-0.03 on LiDAR scans whose lines lie 5 to 50 times as far apart as the steps along them; 0.33-0.36
+# at 4 times, where the bunny needs no thinning (NC 0.912 unthinned, 0.910 thinned). Over 9 points alone, a 128-beam
+# bunny (lines 20x apart, depth noise as wide as a step) read 0.12: not thinned, CD 77.9, NC 0.612, 15.4 s; with the
+# 25 (0.03), thinned 179k -> 33k points in 4 rounds, CD 22.2, NC 0.946, 6.1 s. The 12 benchmark meshes so ("dense
+# lidar", 70k-204k points): over 9 points 0.103-0.125, none thinned; with the 25 0.023-0.040, all thinned: grid 64,
+# CD 134.4 -> 22.6, NC 0.645 -> 0.924, F1 0.302 -> 0.694, 6.9 -> 5.4 s a cloud (alpha wrap 171.3 / 0.863 / 0.548). 12 benchmark meshes from a 48-beam LiDAR (lines 10x apart; bench_pointcloud "lidar"),
 # grid 64, thinned against not (--line-ratio 0), 2026-12-07: 3 positions CD 89.5 -> 33.2, NC 0.665 -> 0.880, F1 0.329
 # -> 0.582, 4.2 -> 2.8 s a cloud; 1 position CD 1065 -> 988, NC 0.594 -> 0.712, F1 0.180 -> 0.265; unthinned the
 # surfaces come apart in strips along the lines. A bunny from 16 beams (50x): NC 0.586 -> 0.792. Cubes of the mean
@@ -444,13 +447,12 @@ SIGN_SAMPLE = 20_000
 LINE_RATIO = 0.1
 LINE_SAMPLE = 5_000
 THIN_ROUNDS = 6
-# Clouds of more than TILE_POINTS distinct points are reconstructed from a uniform subset of
-# ANALYSIS_POINTS (statistics, normals, the target at MAX_TARGET_GRID, the samples) and fitted in
-# tiles of at most TILE_SAMPLES samples (voro3d.pointcloud.tiles); TILE_MARGIN: coarsest voxels of
-# the band around a tile from which it also takes samples and generators. The rest of the points add
-# nothing at the target's resolution: 3M bunny points, all of them the samples in tiles at 141^3,
-# CD 0.5987 / NC 0.9853 (0.6131 / 0.9726 without the snap to the target), against 0.5907 / 0.9900
-# from the target's samples at 128^3 (Poisson's samples beat the points, see target_samples).
+# Clouds of more than TILE_POINTS distinct points are reconstructed from a uniform subset of ANALYSIS_POINTS
+# (statistics, normals, the target at MAX_TARGET_GRID, the samples) and fitted in tiles of at most TILE_SAMPLES
+# samples (voro3d.pointcloud.tiles); TILE_MARGIN: coarsest voxels of the band around a tile from which it also takes
+# samples and generators. The rest of the points add nothing at the target's resolution: 3M bunny points, all of them
+# the samples in tiles at 141^3, CD 0.5987 / NC 0.9853 (0.6131 / 0.9726 without the snap to the target), against
+# 0.5907 / 0.9900 from the target's samples at 128^3 (Poisson's samples beat the points, see target_samples).
 TILE_POINTS = 2_000_000
 ANALYSIS_POINTS = 1_000_000
 TILE_SAMPLES = 500_000
@@ -474,15 +476,14 @@ SEAM_STEPS = 100
 # 10.1 / 9.8 s (0.92x); 10^6 points (margin 8) armadillo 49.6 -> 41.1 s, bunny 54.1 -> 48.0 s. All 38 dev meshes at
 # 10^5 points without normals (pointcloud_dense38): CD 0.6588 -> 0.6557, NC 0.9821 both, F1 0.9382 -> 0.9381.
 SPLIT_POINTS = 60_000
-# Each half takes the points up to this many octree cells past the cut. Against the surface solved
-# whole (armadillo and fandisk, 10^5 points, depth 8), the halves' vertices lie at most 0.28-0.40
-# cells off it (0.07-0.10 at the 99th percentile) for a margin of 2, 4, 8 or 16 cells alike: the
-# difference is the halves' own octree alignment, not the cut (at the cut 0.12-0.36). Whole
-# reconstruct, 10^5 true-normal points, bunny / armadillo / fandisk / abc_00000005, CD whole 0.5951 /
-# 0.4651 / 0.6683 / 0.6318; split with a margin of 4: 0.5918 / 0.4677 / 0.6675 / 0.6359; 8: 0.5941 /
-# 0.4659 / 0.6665 / 0.6311; 16: 0.5914 / 0.4645 / 0.6649 / 0.6339 (NC within 0.0005 of whole's, F1
-# within 0.0012): a tiny change of the target moves the fit by as much, and the widest margin is the
-# safest where a hole crosses the cut.
+# Each half takes the points up to this many octree cells past the cut. Against the surface solved whole (armadillo
+# and fandisk, 10^5 points, depth 8), the halves' vertices lie at most 0.28-0.40 cells off it (0.07-0.10 at the 99th
+# percentile) for a margin of 2, 4, 8 or 16 cells alike: the difference is the halves' own octree alignment, not the
+# cut (at the cut 0.12-0.36). Whole reconstruct, 10^5 true-normal points, bunny / armadillo / fandisk / abc_00000005,
+# CD whole 0.5951 / 0.4651 / 0.6683 / 0.6318; split with a margin of 4: 0.5918 / 0.4677 / 0.6675 / 0.6359; 8: 0.5941 /
+# 0.4659 / 0.6665 / 0.6311; 16: 0.5914 / 0.4645 / 0.6649 / 0.6339 (NC within 0.0005 of whole's, F1 within 0.0012): a
+# tiny change of the target moves the fit by as much, and the widest margin is the safest where a hole crosses the
+# cut.
 SPLIT_MARGIN_CELLS = 16
 # Thin walls sampled on both sides (preprocess.two_sheets, wall_points): where a plane fit spans both sides of a wall
 # (at 20k points the cup abc_00000009's 16-neighbour fits are 27.8 degrees off the true normals, 1.0-1.2 with 6-8
