@@ -362,13 +362,15 @@ VoroMesh has the lower CD and the higher NC and F1 than Open3D's pipeline from 1
 the lower CD than `alpha_wrap_3` from both and the higher NC from 3 (0.880 against 0.833), **but not
 alpha wrap's F1** (0.582 against 0.598 from 3 positions, 0.265 against 0.325 from 1) nor its NC from 1
 (0.712 against 0.746). The same clouds unthinned (`--line-ratio 0 --no-poisson`): 3 positions CD 89.5,
-NC 0.665, F1 0.329, 4.2 s a cloud; 1 position 1065, 0.594, 0.180. *Dense lidar* (VoroMesh and alpha
-wrap only: Open3D's orientation of 70k-204k points was not run): a 128-beam sensor's lines, 20x as far
-apart as its steps, with depth noise as wide as a step, which spreads the 9 nearest points across their
-line, so the lines are read over the 25 nearest too; unthinned CD 134.4, NC 0.645, F1 0.302, 6.9 s a
-cloud. Every output closed; from 3 positions the cow comes in 3 pieces (its legs, which few lines
-cross) and the elephant in 2. 3.3x Open3D's pipeline's time where both ran (3.0-3.2 s a cloud against
-0.7-1.2 s).""",
+NC 0.665, F1 0.329, 4.2 s a cloud; 1 position 1065, 0.594, 0.180. *Dense lidar* (a second run,
+merged): a 128-beam sensor's lines, 20x as far apart as its steps, with depth noise as wide as a step,
+which spreads the 9 nearest points across their line, so the lines are read over the 25 nearest too;
+70k-204k points. VoroMesh CD 22.6, NC 0.924, F1 0.694 against Open3D's 687.0, 0.709, 0.459 and alpha
+wrap's 171.3, 0.863, 0.548, in 0.62x Open3D's pipeline's time (5.2 s a cloud against 8.4 s, no
+orientation capped); unthinned (VoroMesh only) CD 134.4, NC 0.645, F1 0.302, 6.9 s. Every output
+closed; from 3 positions the cow comes in 3 pieces (its legs, which few lines cross) and the elephant
+in 2. The sparse LiDAR rows take 3.3x Open3D's pipeline's time (3.0-3.2 s a cloud against 0.7-1.2 s),
+all three 1.11x.""",
     "pointcloud_scanner_artifacts": """\
 Two faults of merged real scans, on the 12 benchmark meshes, all three methods in one run (2026-12-07,
 `--conditions "misaligned range scan 3 views" ... --alpha-wrap`). *Misaligned*: each view moved by its
