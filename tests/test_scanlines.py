@@ -52,6 +52,9 @@ def test_thinning_stops_once_the_neighbourhoods_are_two_dimensional():
     even = sample_surface(example_mesh("torus"), 4000, seed=0)[0]
     same = thin_lines(even, None, tree=cKDTree(even))
     assert same[0] is even and same[2] == 0
+    forced = thin_lines(even, None, tree=cKDTree(even), force=True)  # plan thin "on": one round at least
+    assert forced[2] == 1 and len(forced[0]) < len(even)
+    assert thin_lines(points, tree=cKDTree(points), min_points=len(points))[-1] == 0  # never under min_points
 
 
 def _on_axis(points):
