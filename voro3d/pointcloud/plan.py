@@ -61,7 +61,7 @@ class CloudPlan:
     thin : {"auto", "on", "off"}
         Thin the points along the lines they were sampled on, far apart for their spacing along
         them (a LiDAR's scan lines), whose nearest neighbours all lie on their own line
-        (:func:`~voro3d.pointcloud.preprocess.thin_lines`). ``"auto"``: while they do
+        (:func:`~voro3d.pointcloud.scanlines.thin_lines`). ``"auto"``: while they do
         (``LINE_RATIO``); ``"on"``: one round at least.
     """
 
