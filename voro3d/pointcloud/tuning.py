@@ -354,12 +354,11 @@ SIGHT_LINES = 32
 SIGHT_GAP = 6.0
 SIGHT_POINTS = 20_000
 MIN_REVEALING = 0.005
-# Objects far apart (voro3d.reconstruction._objects) are told apart on every k-th point, at most
-# SEPARATE_POINTS of them (every point then goes with its nearest subset point; a group that ends under
-# MIN_POINTS joins the rest). The same groups, point for point, as from every point on 10^6 samples of
-# bunny, fandisk and thingi32_75655 (one group), two 500k bunnies 1.05 and 2.2 box sides apart (one:
-# their grown boxes overlap) and a 500k bunny with 2,000 or 300 points of spot 3 sides away (two);
-# 1.1-2.8 s instead of 3.4-10.6 s (2026-12-04, beside another benchmark).
+# Objects far apart (voro3d.reconstruction._objects) are told apart on every k-th point, at most SEPARATE_POINTS of
+# them (every point then goes with its nearest subset point; a group that ends under MIN_POINTS joins the rest). The
+# same groups, point for point, as from every point on 10^6 samples of bunny, fandisk and thingi32_75655 (one group),
+# two 500k bunnies 1.05 and 2.2 box sides apart (one: their grown boxes overlap) and a 500k bunny with 2,000 or 300
+# points of spot 3 sides away (two); 1.1-2.8 s instead of 3.4-10.6 s (2026-12-04, beside another benchmark).
 SEPARATE_POINTS = 200_000
 # Adam steps of a cloud's fit (a mesh's stays 400): its mesh is fitted to the target afterwards, which settles what
 # the last steps would. 4 dev meshes x clean 20k / 0.5% noise / a third missing at grid 64, 200 against 400 steps: CD
@@ -391,14 +390,13 @@ CLOUD_BOUNDARY_STEPS = 40
 # (a 3-view scan; +2.2% on the rest), NC at worst -0.0008 on average, F1 within 0.0005; samples and fit 0.56-0.64x, the
 # call 0.83-0.87x the time. At 40: CD +0.5%, +3.2% at worst, NC -0.0019 on clean 100k, for 0.4x the fit.
 CLOUD_SAMPLES_PER_FACE = 75
-# kNN candidates of a cloud's fit searched again after a generator moved this many voxels (a mesh's
-# fit keeps fitting.REFRESH_VOXELS, 1.5; both at most fitting.MAX_REFRESH_DISTANCE, 2.5 voxels at 64^3).
-# 16 dev meshes at 10^5 true-normal points (grid "auto": 128 over 3 levels), 1.5 against 2.5: searches
-# 8-12 -> 5-8, fit CPU time 0.54-0.80x (8 of them), the call 0.89x; CD -0.4% to +0.6% (mean +0.1%), NC
-# within 0.0003, F1 -0.0008 to +0.0025, faces up to +2.5%. At 3.5 voxels (8 meshes): 3-5 searches, NC
-# down to -0.0011 and faces up to +4.4%. At grid 64 (the cap), 6 dev meshes x clean 20k / 0.5% noise /
-# 3-view range scans: searches 4-6 -> 2-3, fit CPU 0.61-1.04x; mean CD -0.1% / +0.5% / 0.0% (worst
-# +1.1%, on noise), NC at worst -0.0010 / -0.0008 / -0.0020.
+# kNN candidates of a cloud's fit searched again after a generator moved this many voxels (a mesh's fit keeps
+# fitting.REFRESH_VOXELS, 1.5; both at most fitting.MAX_REFRESH_DISTANCE, 2.5 voxels at 64^3). 16 dev meshes at 10^5
+# true-normal points (grid "auto": 128 over 3 levels), 1.5 against 2.5: searches 8-12 -> 5-8, fit CPU time 0.54-0.80x
+# (8 of them), the call 0.89x; CD -0.4% to +0.6% (mean +0.1%), NC within 0.0003, F1 -0.0008 to +0.0025, faces up to
+# +2.5%. At 3.5 voxels (8 meshes): 3-5 searches, NC down to -0.0011 and faces up to +4.4%. At grid 64 (the cap), 6 dev
+# meshes x clean 20k / 0.5% noise / 3-view range scans: searches 4-6 -> 2-3, fit CPU 0.61-1.04x; mean CD -0.1% / +0.5%
+# / 0.0% (worst +1.1%, on noise), NC at worst -0.0010 / -0.0008 / -0.0020.
 CLOUD_REFRESH_VOXELS = 2.5
 # A point the outlier tests suspect (preprocess.outlier_mask: sparse, or a stray) stays when it and its 20 neighbours
 # lie within SUSPECT_FLATNESS of their in-plane spread (RMS) of one plane, itself within SUSPECT_OFFSET (the centre of
@@ -432,17 +430,20 @@ SIGN_SAMPLE = 20_000
 # 25-point ones, read at every k-th point (at most LINE_SAMPLE: within 0.003 of every point's on 12k-100k-point clouds
 # (9 points), 0.025 s against 0.48 s at 10^5), is under LINE_RATIO. The lower of the two reads 0.40-0.67 on every
 # cloud of the 38 dev meshes x the benchmark's 24 other conditions (lowest: sparse 300, 0.399) and on the 4 real scans
-# (0.41-0.47); 0.002-0.03 on LiDAR scans whose lines lie 5 to 50 times as far apart as the steps along them; 0.33-0.36
-# at 4 times, where the bunny needs no thinning (NC 0.912 unthinned, 0.910 thinned). Over 9 points alone, a 128-beam
-# bunny (lines 20x apart, depth noise as wide as a step) read 0.12: not thinned, CD 77.9, NC 0.612, 15.4 s; with the
-# 25 (0.03), thinned 179k -> 33k points in 4 rounds, CD 22.2, NC 0.946, 6.1 s. The 12 benchmark meshes so ("dense
-# lidar", 70k-204k points): over 9 points 0.103-0.125, none thinned; with the 25 0.023-0.040, all thinned: grid 64,
-# CD 134.4 -> 22.6, NC 0.645 -> 0.924, F1 0.302 -> 0.694, 6.9 -> 5.4 s a cloud (alpha wrap 171.3 / 0.863 / 0.548). 12 benchmark meshes from a 48-beam LiDAR (lines 10x apart; bench_pointcloud "lidar"),
-# grid 64, thinned against not (--line-ratio 0), 2026-12-07: 3 positions CD 89.5 -> 33.2, NC 0.665 -> 0.880, F1 0.329
-# -> 0.582, 4.2 -> 2.8 s a cloud; 1 position CD 1065 -> 988, NC 0.594 -> 0.712, F1 0.180 -> 0.265; unthinned the
-# surfaces come apart in strips along the lines. A bunny from 16 beams (50x): NC 0.586 -> 0.792. Cubes of the mean
-# 8-neighbour distance instead of twice the nearest one (one round, fewer points left), 4 of those meshes from 3
-# positions at grid auto: CD 73.3 / 11.6 / 78.5 / 83.2 against 76.2 / 7.9 / 74.0 / 76.7, NC within 0.009 either way.
+# (0.41-0.47); 0.002-0.043 on LiDAR scans whose lines lie 5 to 50 times as far apart as the steps along them (the 38
+# dev meshes from the 48-beam LiDAR at 1 and 3 positions: all thinned); 0.33-0.36 at 4 times, where the bunny needs no
+# thinning (NC 0.912 unthinned, 0.910 thinned). Over 9 points alone, a 128-beam bunny (lines 20x apart, depth noise as
+# wide as a step) read 0.12: not thinned, CD 77.9, NC 0.612, 15.4 s; with the 25 (0.03), thinned 179k -> 33k points in
+# 4 rounds, CD 22.2, NC 0.946, 6.1 s. The 12 benchmark meshes so ("dense lidar", 70k-204k points): over 9 points
+# 0.103-0.125, none thinned; with the 25 0.023-0.040, all thinned: grid 64, CD 134.4 -> 22.6, NC 0.645 -> 0.924, F1
+# 0.302 -> 0.694, 6.9 -> 5.4 s a cloud (alpha wrap 171.3 / 0.863 / 0.548). 12 benchmark meshes from a 48-beam LiDAR
+# (lines 10x apart; bench_pointcloud "lidar"), grid 64, thinned against not (--line-ratio 0), 2026-12-07: 3 positions
+# CD 89.5 -> 33.2, NC 0.665 -> 0.880, F1 0.329 -> 0.582, 4.2 -> 2.8 s a cloud; 1 position CD 1065 -> 988, NC 0.594 ->
+# 0.712, F1 0.180 -> 0.265; unthinned the surfaces come apart in strips along the lines. A bunny from 16 beams (50x):
+# NC 0.586 -> 0.792. Cubes of the mean 8-neighbour distance instead of twice the nearest one (one round, fewer points
+# left), 4 of those meshes from 3 positions at grid auto: CD 73.3 / 11.6 / 78.5 / 83.2 against 76.2 / 7.9 / 74.0 /
+# 76.7, NC within 0.009 either way. Merging only the points still on lines, cubes doubling each round, did no better
+# (3 positions 33.8 / 0.887 / 0.574; objects on a plate from 3 positions CD 56.9 against 52.2, NC 0.876 against 0.884).
 # THIN_ROUNDS only bounds the loop on points along a true curve (a wire), which no round makes two-dimensional.
 LINE_RATIO = 0.1
 LINE_SAMPLE = 5_000
