@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .preprocess import NOISE_NEIGHBOURS, SPACING_NEIGHBOURS, group_means, stride
+from .preprocess import NOISE_NEIGHBOURS, SPACING_NEIGHBOURS, _centred_covariance, group_means, stride
 from .tuning import LINE_RATIO, LINE_SAMPLE, THIN_ROUNDS
 
 __all__ = ["line_ratio", "thin_lines"]
@@ -29,9 +29,7 @@ def line_ratio(points: np.ndarray, tree) -> tuple[float, float]:
     distance, neighbour = tree.query(tested, k=min(NOISE_NEIGHBOURS + 1, len(points)), workers=-1)
     ratios = []
     for count in (SPACING_NEIGHBOURS + 1, NOISE_NEIGHBOURS + 1):
-        near = points[neighbour[:, :count]]
-        local = near - near.mean(axis=1, keepdims=True)
-        values = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", local, local))
+        values = np.linalg.eigvalsh(_centred_covariance(points[neighbour[:, :count]])[1])
         ratios.append(float(np.median(values[:, 1] / np.maximum(values[:, 2], 1e-300))))
     return min(ratios), float(np.median(distance[:, 1]))
 
