@@ -35,7 +35,7 @@ def main() -> None:
     import igl
     import open3d as o3d
 
-    from voro3d import queries
+    from voro3d import queries, rowblocks
     from voro3d.frames import fit_frame
     from voro3d.io import load_mesh, mesh_arrays
 
@@ -66,7 +66,7 @@ def main() -> None:
         speed[name] = best
         print(f"{args.mesh} ({triangles.shape[0]} triangles, 20000 queries) {name}: {best:.3f} s", flush=True)
     difference = float(np.abs(results["numpy"] - results["igl"]).max())
-    result = {"libigl": version("libigl"), "numpy_threads": queries.WINDING_THREADS,
+    result = {"libigl": version("libigl"), "numpy_threads": rowblocks.ROW_THREADS,
               "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load_average": os.getloadavg(),
               "hemisphere_centre": centre, "mesh": args.mesh, "triangles": int(triangles.shape[0]), "queries": 20000,
               "seconds": speed, "max_difference": difference}

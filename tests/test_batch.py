@@ -130,18 +130,18 @@ def test_cpu_slots(monkeypatch):
     assert _cpu_slots(3, 2) == [None] * 3
 
 
-# The thread counts of the winding number and of row-wise numpy work follow the CPU affinity that
+# The thread count of row-wise numpy work and winding numbers follows the CPU affinity that
 # voro3d is imported under (a local worker pins itself first), and a batch worker keeps them to its
 # ``threads`` (one here) when it is not pinned (Ray's workers, or more workers x threads than CPUs).
-_WINDING_THREADS_IN_A_WORKER = """
+_ROW_THREADS_IN_A_WORKER = """
 import os, sys
 if sys.argv[2] == "pinned":
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-from voro3d import queries, rowblocks
+from voro3d import rowblocks
 from voro3d.batch.worker import _prepare
-before = (queries.WINDING_THREADS, rowblocks.ROW_THREADS)
+before = rowblocks.ROW_THREADS
 _prepare("learned", sys.argv[1], 1)
-print(*before, queries.WINDING_THREADS, rowblocks.ROW_THREADS)
+print(before, rowblocks.ROW_THREADS)
 """
 
 
@@ -150,11 +150,11 @@ def test_worker_threads_follow_the_worker_affinity_and_threads(affinity):
     cpus = min(4, len(os.sched_getaffinity(0)))
     if cpus < 2:
         pytest.skip("needs two CPUs for the winding number to use more than one thread")
-    result = subprocess.run([sys.executable, "-c", _WINDING_THREADS_IN_A_WORKER, str(DEFAULT_MODEL), affinity],
+    result = subprocess.run([sys.executable, "-c", _ROW_THREADS_IN_A_WORKER, str(DEFAULT_MODEL), affinity],
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     before = "1" if affinity == "pinned" else str(cpus)
-    assert result.stdout.split() == [before, before, "1", "1"]
+    assert result.stdout.split() == [before, "1"]
 
 
 # Without fcntl, resource and msvcrt (as on a platform that lacks them) the CLI still starts; only

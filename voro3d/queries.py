@@ -2,20 +2,20 @@
 point clouds; signed-distance grids."""
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from functools import cached_property
 
 import numpy as np
 
-from ._system import available_cpus
+from . import rowblocks
 from ._validate import as_points, positive_int
 from .geometry import raycasting_scene
 from .io import mesh_arrays
+from .rowblocks import map_rows
 from .sampling import grid_nodes
 from .topology import welded_edge_counts
 
 __all__ = ["InsideOutside", "winding_number", "sdf_grid", "point_areas", "point_winding_number",
-           "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "WINDING_THREADS", "FAST_WINDING_MARGIN", "KNN_BLOCK_ENTRIES",
+           "RAY_DIRECTIONS", "WINDING_PAIRS_PER_BLOCK", "FAST_WINDING_MARGIN", "KNN_BLOCK_ENTRIES",
            "knn_blocks", "query_order", "nearest_distance", "neighbour_table", "spatial_order"]
 
 # Ray directions of the inside test: mutually orthogonal and far from the axes and diagonals, so rays from
@@ -29,11 +29,8 @@ RAY_DIRECTIONS = np.array([
 ])
 
 # Query-triangle pairs per block in :func:`winding_number`; about ten float64 arrays of this many entries are alive at
-# once per thread, so 2**21 pairs and up to four threads peak near 0.7 GB.
+# once per thread, so 2**21 pairs and up to four threads (``rowblocks.ROW_THREADS``) peak near 0.7 GB.
 WINDING_PAIRS_PER_BLOCK = 2**21
-# Threads of :func:`winding_number`: the CPUs this process may run on (its affinity, which a ``voro3d batch`` worker
-# sets before it imports this module), at most four.
-WINDING_THREADS = min(4, available_cpus())
 # Neighbour entries per block of a chunked kNN query (:func:`knn_blocks`): 32 MB, whatever the cloud's size.
 KNN_BLOCK_ENTRIES = 2**21
 # Fast winding numbers this close to 0.5 are recomputed exactly before the inside test; their error was below 0.0034
@@ -108,8 +105,7 @@ def winding_number(mesh_vertices, mesh_triangles, queries, *, chunk: int | None 
     squared_norms = np.einsum("ij,ij->i", vertices, vertices)
     corners = triangles.T.copy()
 
-    def block(start: int) -> None:
-        q = queries[start:start + chunk]
+    def winding(q: np.ndarray) -> np.ndarray:
         qq = np.einsum("ij,ij->i", q, q)[:, None]
         projection = q @ vertices.T
         lengths = squared_norms - 2.0 * projection + qq
@@ -124,14 +120,10 @@ def winding_number(mesh_vertices, mesh_triangles, queries, *, chunk: int | None 
         denominator += (dot_ca - pc - pa + qq) * lb
         # Solid angle = 2 atan2(numerator, denominator); winding = sum of solid angles / (4 pi).
         angles = np.arctan2(det0 - q @ normal_sum, denominator, out=denominator)
-        result[start:start + chunk] = angles.sum(axis=1) / (2.0 * np.pi)
+        return angles.sum(axis=1) / (2.0 * np.pi)
 
-    result = np.empty(queries.shape[0])
-    starts = range(0, queries.shape[0], chunk)
-    # numpy releases the GIL inside large array operations, so threads share the cores.
-    with ThreadPoolExecutor(max_workers=WINDING_THREADS) as pool:
-        list(pool.map(block, starts))
-    return result
+    # numpy releases the GIL inside large array operations, so the blocks' threads share the cores.
+    return map_rows(winding, queries, block=chunk)
 
 
 class InsideOutside:
@@ -497,4 +489,4 @@ def point_winding_number(points, normals, queries, *, areas=None) -> np.ndarray:
     if queries.shape[0] == 0:
         return np.zeros(0)
     areas = point_areas(points) if areas is None else np.ascontiguousarray(areas, np.float64)
-    return barnes_hut(points, normals, areas, queries, threads=WINDING_THREADS)
+    return barnes_hut(points, normals, areas, queries, threads=rowblocks.ROW_THREADS)

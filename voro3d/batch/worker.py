@@ -95,15 +95,14 @@ def _prepare(method: str, model: str | None, threads: int) -> None:
     import numpy as np
     import open3d as o3d
 
-    from .. import queries, rowblocks
+    from .. import rowblocks
     from ..voromesh import VoroMesh
     from ..metrics import evaluate
     from ..watertight import check_watertight
 
-    # queries.WINDING_THREADS and rowblocks.ROW_THREADS follow the affinity this worker was pinned to
-    # before the import; an unpinned worker (Ray's, or more workers x threads than CPUs) must still
-    # keep to ``threads``.
-    queries.WINDING_THREADS = max(1, min(queries.WINDING_THREADS, threads))
+    # rowblocks.ROW_THREADS (numpy row blocks, winding numbers) follows the affinity this worker was
+    # pinned to before the import; an unpinned worker (Ray's, or more workers x threads than CPUs)
+    # must still keep to ``threads``.
     rowblocks.ROW_THREADS = max(1, min(rowblocks.ROW_THREADS, threads))
     box = o3d.geometry.TriangleMesh.create_box()
     _reconstruct(box, method, grid=8, steps=2, seed=0, model=model, threads=threads)
