@@ -723,6 +723,19 @@ def merge(sources, out: Path, folder: Path):
     print(f"wrote {out.with_suffix('.md')}")
 
 
+def add_hull_argument(parser) -> None:
+    """``--hull-margin``: the ablation beside ``HULL_MARGIN_NODES``, applied by :func:`set_hull_margin`."""
+    parser.add_argument("--hull-margin", type=float, help="HULL_MARGIN_NODES for this run, the ablation beside it in "
+                        "voro3d/pointcloud/tuning.py")
+
+
+def set_hull_margin(args) -> None:
+    if args.hull_margin is not None:
+        import voro3d.pointcloud.hull as hull_module
+
+        hull_module.HULL_MARGIN_NODES = args.hull_margin
+
+
 def main():
     global ORIENT_NEIGHBOURS  # --orient-neighbours; read by the forked orientation child
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -754,6 +767,7 @@ def main():
                         "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--line-ratio", type=float, help="LINE_RATIO for this run (0: no cloud is thinned along its "
                         "scan lines), the ablation beside it")
+    add_hull_argument(parser)
     parser.add_argument("--prefilter", action="store_true", help="Open3D's statistical outlier removal (20 neighbours, "
                         "2 deviations) on each cloud before VoroMesh, as the README advises for flying pixels")
     parser.add_argument("--pictured", nargs="+", default=list(PICTURED), help="shapes whose meshes the picture shows")
@@ -793,6 +807,7 @@ def main():
         import voro3d.pointcloud.scanlines as scanlines_module
 
         scanlines_module.LINE_RATIO = args.line_ratio
+    set_hull_margin(args)
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
     grid = args.grid if args.grid == "auto" else int(args.grid)
@@ -809,6 +824,7 @@ def main():
                 sheet_support="default" if args.sheet_support is None else args.sheet_support,
                 auto_width="default" if args.auto_width is None else args.auto_width,
                 line_ratio="default" if args.line_ratio is None else args.line_ratio,
+                hull_margin="default" if args.hull_margin is None else args.hull_margin,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured,
                 prefilter=args.prefilter)
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_pointcloud import SHARED, _mean, _pieces, best_poisson, dev_shapes, range_scan
+from bench_pointcloud import SHARED, _mean, _pieces, add_hull_argument, best_poisson, dev_shapes, range_scan, set_hull_margin
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "scenes"
@@ -160,6 +160,7 @@ def main():
     parser.add_argument("--no-poisson", action="store_true")
     parser.add_argument("--shell-depth", choices=("local", "uniform"), default="local")
     parser.add_argument("--hull", choices=("auto", "on", "off"), default="auto")
+    add_hull_argument(parser)
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
     import multiprocessing
@@ -168,6 +169,7 @@ def main():
 
     if args.shell_depth == "uniform":
         targets_module.shell_depths = lambda points, normals, most, least: most
+    set_hull_margin(args)
     shapes = dev_shapes(args.shapes)
     picture_dir = ROOT / "out" / "bench_scenes"
     picture_dir.mkdir(parents=True, exist_ok=True)
@@ -175,6 +177,7 @@ def main():
     load = lambda: " ".join(Path("/proc/loadavg").read_text().split()[:3])  # noqa: E731
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M"), machine=f"x86_64, {multiprocessing.cpu_count()} cores",
                 load_before=load(), grid=args.grid, shell_depth=args.shell_depth, hull=args.hull, shapes=shapes,
+                hull_margin="default" if args.hull_margin is None else args.hull_margin,
                 views=args.views)
     rows = []
     for views in args.views:

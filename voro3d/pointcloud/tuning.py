@@ -110,21 +110,19 @@ TARGET_CELL_SPACINGS = 1.5
 # 0.4212 / 0.9964); the mesh stage 5-6 s -> 5-10 s, 4x the faces (160-650k, Poisson's 0.4-1.5M). With 10^6 evaluation
 # samples, whose spacing no longer hides the facets, armadillo CD 0.0480 -> 0.0469 (Poisson 0.0464).
 MAX_REFINE = 2
-# A cloud's mesh is split until its triangles are about as fine as the finest detail its Poisson target
-# holds (resolution.refine_levels): the target's octree cell, or this many median spacings, the coarser
-# (points a spacing apart show nothing finer than two spacings: sparse clouds are not split however fine
-# the octree). Noisy clouds are not split (bunny, cow, elephant at 0.5% noise, 20k points, once: CD +1%,
-# +3%, +3%). 12 benchmark meshes at grid 64, split 0 / 1 / 2 times (2026-12-05, /tmp sweep, shared
-# machine), mean NC: clean 100k 0.9809 / 0.9847 / 0.9867, 2% outliers 0.9792 / 0.9830 / 0.9848, 20x
-# density ramp 0.9788 / 0.9825 / 0.9844, a third missing 0.8975 / 0.9001 / 0.9010 (this rule, 1-2 splits
-# there, nothing kept at creases: 0.9856, 0.9830, 0.9837, 0.9001); CD about 1.3% lower at one split, the
-# same at two; faces 12k -> 46k / 186k (Poisson's 100-220k), the mesh stage 0.5 -> 1.2 / 2.3 s. Clean 5k
-# and 20k (voxels 1.1-3.4 spacings: not split, but for one 20k cloud) would gain 0.002-0.003 NC for 4x
-# the faces, at 5k more than Poisson's. As landed, split once with the pieces at creases kept
-# (snapping.CREASE_DEGREES; benchmarks/results/pointcloud.md, 2026-12-05): NC 0.9852 / 0.9821 / 0.9835 /
-# 0.8993 against Open3D's 0.9855 / 0.9797 / 0.9641 / 0.9019, faces 85k / 47k / 99k / 49k, seconds a cloud
-# within run-to-run noise (clean 100k 9.7 -> 9.2, outliers 7.9 -> 8.3); the 38 dev meshes at clean 100k
-# NC 0.9822 -> 0.9855, CD 0.6547 -> 0.6513 (pointcloud_dense38.md).
+# A cloud's mesh is split until its triangles are about as fine as the finest detail its Poisson target holds
+# (resolution.refine_levels): the target's octree cell, or this many median spacings, the coarser (points a spacing
+# apart show nothing finer than two spacings: sparse clouds are not split however fine the octree). Noisy clouds are not
+# split (bunny, cow, elephant at 0.5% noise, 20k points, once: CD +1%, +3%, +3%). 12 benchmark meshes at grid 64, split
+# 0 / 1 / 2 times (2026-12-05, /tmp sweep, shared machine), mean NC: clean 100k 0.9809 / 0.9847 / 0.9867, 2% outliers
+# 0.9792 / 0.9830 / 0.9848, 20x density ramp 0.9788 / 0.9825 / 0.9844, a third missing 0.8975 / 0.9001 / 0.9010 (this
+# rule, 1-2 splits there, nothing kept at creases: 0.9856, 0.9830, 0.9837, 0.9001); CD about 1.3% lower at one split,
+# the same at two; faces 12k -> 46k / 186k (Poisson's 100-220k), the mesh stage 0.5 -> 1.2 / 2.3 s. Clean 5k and 20k
+# (voxels 1.1-3.4 spacings: not split, but for one 20k cloud) would gain 0.002-0.003 NC for 4x the faces, at 5k more
+# than Poisson's. As landed, split once with the pieces at creases kept (snapping.CREASE_DEGREES;
+# benchmarks/results/pointcloud.md, 2026-12-05): NC 0.9852 / 0.9821 / 0.9835 / 0.8993 against Open3D's 0.9855 / 0.9797 /
+# 0.9641 / 0.9019, faces 85k / 47k / 99k / 49k, seconds a cloud within run-to-run noise (clean 100k 9.7 -> 9.2, outliers
+# 7.9 -> 8.3); the 38 dev meshes at clean 100k NC 0.9822 -> 0.9855, CD 0.6547 -> 0.6513 (pointcloud_dense38.md).
 DETAIL_SPACINGS = 2.0
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
@@ -252,7 +250,11 @@ MAX_POISSON_ESCAPE = 0.08
 # plan_hull.md: 325 -> 451, NC -0.019, 1 of 28), and neither the level (0.14-0.46 against 0.31-0.48), the share of the
 # solid cut (0-0.27 both), the closure's mean reach past the hull (0.04-0.11 against 0.03-0.24) nor this margin
 # (homer's 3-view scan 53 / 96 / 106 at 4 / 8 / 16 nodes, spot's third missing 180 / 107 / 71, against 236 at 2 and 78
-# off) tells them apart.
+# off) tells them apart. Margin 0 / 1 / 2 nodes (2026-12-07, --hull-margin): one-view scans want it (their unseen back
+# lies past the hull): CD 280.1 at 0 against 227.1 on 28 dev meshes, 314.4 at 1 against 264.7 on 19; a table from 3 views
+# does not (bench_scenes: the plate, seen to its lower edges, ends at the hull): CD / F1 3.9 / 0.832, 9.2 / 0.510, 23.5 /
+# 0.498. The cut at the hull where the solid is over a voxel thick, the margin only where thinner, loses the one-view
+# scans alike (302.5 against 258.3 on 23): a plate's lower edge and a silhouette's rim look alike to the points.
 HULL_MARGIN_NODES = 2.0
 # Share of the points that must lie on the target surface (within two kernel widths).
 MIN_COVERAGE = 0.9
@@ -297,17 +299,15 @@ SHEET_WIN = 0.7
 # spacing read higher: at grid 32 the lid at 5k 0.76, test_walls_thinner_than_the_spacing's cup 0.95 (now IMLS's solid,
 # CD 601; at grid 48 the shell's 10). Rerun: bench_pointcloud.py --conditions "noisy range scan 1 view" ... --sheet-support inf.
 SHEET_SUPPORT = 0.78
-# Its offset: this many median spacings, at least a field step. (The noise estimate is no guide
-# there: it reads the two sides of the walls as noise.) 1.25 until the shell was closed back to the
-# points (SHEET_HUG): a wider ball then leaves fewer tunnels through a wall sampled at random, where
-# a closing ball fits through the gaps between points. Genus of the shell (the lid abc_00000007 at
-# 5k / 20k points, from 6 range views; the cup abc_00000009 at 5k; the offset shell: 0 / 1 / 5 / 1),
-# offset 1.25 spacings and a hug of 0.25: 15 / 2 / 28 / 16 (white specks through the walls in the
-# pictures); 1.6 and 0.25: 1 / 1 / 16 / 0; 2.0 and 0.25: 0 / 0 / 28 / 0. CD / NC at grid 64: 1.25:
-# 3.10 / 0.910, 2.21 / 0.929, 2.29 / 0.916, 3.14 / 0.962; 1.6: 4.64 / 0.917, 2.57 / 0.931, 2.27 /
-# 0.921, 3.38 / 0.976; 2.0: 6.91 / 0.910, 3.18 / 0.931, 2.55 / 0.925, 3.92 / 0.980 (the wider ball
-# fills the lid's groove). Landed, 1.6 and SHEET_HUG 0.16 (0.256 spacing): genus 1 / 1 / 16 / 0, CD /
-# NC 4.71 / 0.917, 2.59 / 0.932, 2.27 / 0.923, 3.45 / 0.976.
+# Its offset: this many median spacings, at least a field step. (The noise estimate is no guide there: it reads the two
+# sides of the walls as noise.) 1.25 until the shell was closed back to the points (SHEET_HUG): a wider ball then leaves
+# fewer tunnels through a wall sampled at random, where a closing ball fits through the gaps between points. Genus of
+# the shell (the lid abc_00000007 at 5k / 20k points, from 6 range views; the cup abc_00000009 at 5k; the offset shell:
+# 0 / 1 / 5 / 1), offset 1.25 spacings and a hug of 0.25: 15 / 2 / 28 / 16 (white specks through the walls in the
+# pictures); 1.6 and 0.25: 1 / 1 / 16 / 0; 2.0 and 0.25: 0 / 0 / 28 / 0. CD / NC at grid 64: 1.25: 3.10 / 0.910, 2.21 /
+# 0.929, 2.29 / 0.916, 3.14 / 0.962; 1.6: 4.64 / 0.917, 2.57 / 0.931, 2.27 / 0.921, 3.38 / 0.976; 2.0: 6.91 / 0.910,
+# 3.18 / 0.931, 2.55 / 0.925, 3.92 / 0.980 (the wider ball fills the lid's groove). Landed, 1.6 and SHEET_HUG 0.16
+# (0.256 spacing): genus 1 / 1 / 16 / 0, CD / NC 4.71 / 0.917, 2.59 / 0.932, 2.27 / 0.923, 3.45 / 0.976.
 SHEET_OFFSET = 1.6
 # The union of balls is closed back to this share of its offset from the points (fields.closing; one-sided parts keep
 # a node's half thickness): a quarter spacing at SHEET_OFFSET. CD / NC / F1 at grid 64 (2026-12-05, offset 1.25
