@@ -156,6 +156,19 @@ def test_load_points_open3d_formats(tmp_path, suffix):
     assert loaded.has_normals() == (suffix != ".xyz")
 
 
+def test_load_points_leaves_out_an_organized_scan_s_nan_points(tmp_path):
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(40, 3))
+    points[::10] = np.nan
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.colors = o3d.utility.Vector3dVector(rng.random((40, 3)))
+    o3d.io.write_point_cloud(str(tmp_path / "organized.pcd"), cloud)
+    with pytest.warns(UserWarning, match="4 of 40 points have NaN or inf coordinates"):
+        loaded = load_points(tmp_path / "organized.pcd")
+    np.testing.assert_allclose(np.asarray(loaded.points), points[np.isfinite(points).all(axis=1)], atol=1e-5)
+    assert len(loaded.colors) == 36
+
+
 @pytest.mark.parametrize("header", ["", "40\n"])
 def test_load_points_text_with_normals(tmp_path, header):
     """CGAL's .pwn and six-column .xyz: x y z nx ny nz a line (a count line first in some)."""
@@ -178,10 +191,14 @@ def test_load_points_errors(tmp_path):
     bad[2, 4] = np.inf  # a normal: passed on, for the reconstruction to repair
     np.save(tmp_path / "inf.npy", bad)
     assert np.isinf(np.asarray(load_points(tmp_path / "inf.npy").normals)[2, 1])
-    bad[2, 1] = np.nan  # a position
+    bad[2, 1] = np.nan  # a position: left out (an organized scan's empty pixel), its normal with it
     np.save(tmp_path / "nan.npy", bad)
+    with pytest.warns(UserWarning, match="1 of 5 points have NaN or inf coordinates"):
+        cloud = load_points(tmp_path / "nan.npy")
+    assert len(cloud.points) == len(cloud.normals) == 4 and np.isfinite(np.asarray(cloud.normals)).all()
+    np.save(tmp_path / "all_nan.npy", np.full((5, 3), np.nan))
     with pytest.raises(ValueError, match="NaN or inf"):
-        load_points(tmp_path / "nan.npy")
+        load_points(tmp_path / "all_nan.npy")
     with pytest.raises(ValueError, match="could not be read"):
         load_points(write(tmp_path / "junk.npy", "not numpy"))
     with pytest.raises(ValueError, match="could not be read"):

@@ -222,6 +222,23 @@ def test_repeated_points_are_merged(torus_cloud):
     assert np.allclose(np.asarray(once.vertices), np.asarray(repeated.vertices))
 
 
+def test_points_with_nan_coordinates_are_left_out_with_a_warning(torus_cloud):
+    """An organized scan writes its empty pixels as NaN: the mesh is that of the other points,
+    their normals and colours kept in step."""
+    mesh, points, normals = torus_cloud
+    colours = np.clip(0.5 + 0.5 * normals, 0.0, 1.0)
+    clean = _cloud(points[:3000], normals[:3000])
+    clean.colors = o3d.utility.Vector3dVector(colours[:3000])
+    holes = np.insert(points[:3000], np.arange(0, 3000, 100), np.nan, axis=0)
+    cloud = _cloud(holes, np.insert(normals[:3000], np.arange(0, 3000, 100), 0.0, axis=0))
+    cloud.colors = o3d.utility.Vector3dVector(np.insert(colours[:3000], np.arange(0, 3000, 100), 0.0, axis=0))
+    with pytest.warns(UserWarning, match="30 of 3,030 points have NaN or inf coordinates"):
+        out = reconstruct(cloud, **FAST)
+    expected = reconstruct(clean, **FAST)
+    assert np.array_equal(np.asarray(out.triangles), np.asarray(expected.triangles))
+    assert np.allclose(np.asarray(out.vertex_colors), np.asarray(expected.vertex_colors))
+
+
 def test_merge_duplicates_merges_copies_only():
     """Points of a grid share every coordinate with others (a CAD face's samples) but repeat none:
     nothing is merged; copies are, -0.0 and 0.0 alike, their attributes averaged."""

@@ -55,6 +55,21 @@ def as_points(value, name: str, *, min_count: int = 1, dtype=np.float64) -> np.n
     return array
 
 
+def finite_rows(points, name: str, *, stacklevel: int = 3) -> np.ndarray | None:
+    """The rows of an ``(n, 3)`` array whose coordinates are all finite, as a bool mask, or None
+    when all are (or none is: the caller's own check then names the problem). Rows that are not
+    are left out with a warning: an organized scan (PCL's ``.pcd``, a depth image) writes its empty
+    pixels as NaN."""
+    import warnings
+
+    keep = np.isfinite(points).all(axis=1)
+    if keep.all() or not keep.any():
+        return None
+    warnings.warn(f"{name}: {int((~keep).sum()):,} of {len(keep):,} points have NaN or inf coordinates (empty "
+                  "pixels of an organized scan?); they are left out", stacklevel=stacklevel)
+    return keep
+
+
 def as_mask(value, name: str, length: int) -> np.ndarray:
     """Return ``value`` as a ``(length,)`` bool array; 0/1 integers are accepted.
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import as_points, is_trusted
+from ._validate import as_points, finite_rows, is_trusted
 from .geometry import vertex_normals
 
 __all__ = ["MESH_SUFFIXES", "POINT_SUFFIXES", "POINT_WRITE_SUFFIXES", "POLYGON_SUFFIXES", "atomic_path", "load_mesh", "load_points",
@@ -222,7 +222,8 @@ def load_points(path):
         ``path`` does not exist.
     ValueError
         The file could not be read, holds no points, has the wrong shape, or NaN/inf positions
-        (normals are passed as they are).
+        only; some are left out with a warning (an organized scan's empty pixels), normals are
+        passed as they are.
     """
     import open3d as o3d
 
@@ -239,6 +240,8 @@ def load_points(path):
             raise ValueError(f"{path} holds no points")
         if array.ndim != 2 or array.shape[1] not in (3, 6):
             raise ValueError(f"{path} could not be read: it must hold an array of shape (n, 3) or (n, 6), got {array.shape}")
+        keep = finite_rows(array[:, :3], str(path))
+        array = array if keep is None else array[keep]
         # Normals pass as they are: zero or NaN ones (scanners write them) are repaired
         # from their neighbours by the reconstruction, which names the problem when there are many.
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(as_points(array[:, :3], str(path))))
@@ -249,6 +252,8 @@ def load_points(path):
         cloud = o3d.io.read_point_cloud(str(path))
     if len(cloud.points) == 0:
         raise ValueError(f"{path} could not be read as a point cloud (corrupt or empty; formats: {', '.join(POINT_SUFFIXES)})")
+    if finite_rows(np.asarray(cloud.points), str(path)) is not None:
+        cloud.remove_non_finite_points()  # its normals and colours alike, whatever their own values
     as_points(np.asarray(cloud.points), str(path))
     return cloud
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import MESH_AUTO_GRID, as_points, grid_option, mesh_grid, method_options, positive_int, trusted
+from ._validate import MESH_AUTO_GRID, as_points, finite_rows, grid_option, mesh_grid, method_options, positive_int, trusted
 from .pointcloud.plan import as_plan
 from .pointcloud.reconstruct import METHODS, MIN_POINTS
 from .pointcloud.preprocess import check_stride
@@ -118,9 +118,9 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     Raises
     ------
     ValueError
-        Empty or too small cloud (< 100 points), NaN/inf points, all points coplanar, more than
-        1% of the given normals unusable, a cloud of outliers only (it fills a volume), normals
-        not estimable, an unknown method, an option the method does not use (``steps``, ``seed``
+        Empty or too small cloud (< 100 points; points with NaN or inf coordinates are left out,
+        with a warning), all points coplanar, more than 1% of the given normals unusable, a cloud
+        of outliers only (it fills a volume), normals not estimable, an unknown method, an option the method does not use (``steps``, ``seed``
         or ``device`` with ``method="learned"``), a ``plan`` given for a mesh or not a plan, or a
         non-watertight input mesh.
     """
@@ -311,6 +311,12 @@ def _read(geometry):
             points, normals = array[:, :3], array[:, 3:]
         else:
             points, normals = array, None
+    array = np.asarray(points)
+    if array.ndim == 2 and array.shape[1] == 3 and np.issubdtype(array.dtype, np.number):
+        keep = finite_rows(array, "points", stacklevel=4)
+        if keep is not None:
+            points = array[keep]
+            normals, colors = (None if a is None or len(a) != len(keep) else np.asarray(a)[keep] for a in (normals, colors))
     points = as_points(points, "points", min_count=0)
     if colors is not None:
         colors = np.asarray(colors, np.float64)
