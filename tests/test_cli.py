@@ -138,6 +138,19 @@ def test_progress_in_a_log_is_phase_lines_not_a_bar(tmp_path, cloud):
     assert len(lines) <= 8
 
 
+def test_warnings_are_one_line_each(tmp_path, cloud, capsys):
+    """An organized scan's NaN points are left out with a warning: one line naming the command, not
+    a Python source location."""
+    points = np.asarray(load_points(cloud).points).copy()
+    points[::30] = np.nan
+    np.save(tmp_path / "organized.npy", points)
+    assert main(["reconstruct", str(tmp_path / "organized.npy"), "-o", str(tmp_path / "a.ply"), "--grid", "16",
+                 "--steps", "5", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "voro3d reconstruct: warning: " in err and "100 of 3,000 points have NaN or inf coordinates" in err
+    assert "UserWarning" not in err and ".py:" not in err
+
+
 def test_flag_names():
     assert flag_names("grid must be 'auto' or an integer >= 4, got 3") == "--grid must be 'auto' or an integer >= 4, got 3"
     assert flag_names("method='learned' takes no steps or seed (only method='fit' uses them)") == \

@@ -1,6 +1,7 @@
 """The ``voro3d`` command: a thin layer over the library.
 
-Errors in the input become one line on stderr, naming the command-line flags, and exit status 2;
+Errors in the input become one line on stderr, naming the command-line flags, and exit status 2
+(warnings one line each too);
 output paths are checked before any work, and outputs are written atomically, so a failed run
 leaves no file behind.
 """
@@ -11,6 +12,7 @@ import json
 import os
 import re
 import sys
+import warnings
 from pathlib import Path
 
 from ._extras import MissingExtra
@@ -424,7 +426,11 @@ def _version() -> str:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        status = args.run(args)
+        with warnings.catch_warnings():
+            # One line each, as the errors below: a user of the command needs what, not where in voro3d.
+            warnings.showwarning = lambda message, category, *rest, **options: print(
+                f"voro3d {args.command}: warning: {flag_names(str(message))}", file=sys.stderr)
+            status = args.run(args)
     except (ValueError, MissingExtra, FileNotFoundError, IsADirectoryError, PermissionError) as error:
         print(f"voro3d {args.command}: error: {flag_names(str(error))}", file=sys.stderr)
         return 2
