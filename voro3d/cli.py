@@ -1,9 +1,8 @@
 """The ``voro3d`` command: a thin layer over the library.
 
 Errors in the input become one line on stderr, naming the command-line flags, and exit status 2
-(warnings one line each too);
-output paths are checked before any work, and outputs are written atomically, so a failed run
-leaves no file behind.
+(a warning is one line too); output paths are checked before any work, and outputs are written
+atomically, so a failed run leaves no file behind.
 """
 from __future__ import annotations
 
