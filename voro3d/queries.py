@@ -171,10 +171,10 @@ class InsideOutside:
                 "generalized winding number, or reconstruct points sampled on it as a point cloud")
         self.scene = raycasting_scene(self.vertices, self.triangles)
 
-    # # Counted on the first inside test (with allow_open): a mesh queried for distances only (a split # Poisson
-    # target's whole surface, 375k triangles: 0.08 s) never counts its edges. Crossing parity # needs only an even
-    # count on every edge (two sheets that touch along an edge, as Poisson leaves, # are 4): the winding number
-    # everywhere instead cost 12 of the 20 s of a lid's Poisson target.
+    # Counted on the first inside test (with allow_open): a mesh queried for distances only (a split Poisson target's
+    # whole surface, 375k triangles: 0.08 s) never counts its edges. Crossing parity needs only an even count on every
+    # edge (two sheets that touch along an edge, as Poisson leaves, are 4): the winding number everywhere instead cost
+    # 12 of the 20 s of a lid's Poisson target.
     _edge_counts = cached_property(lambda self: welded_edge_counts(self.vertices, self.triangles))
     closed = cached_property(lambda self: bool((self._edge_counts == 2).all()))
     _parity = cached_property(lambda self: bool((self._edge_counts % 2 == 0).all()))

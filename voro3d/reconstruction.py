@@ -120,9 +120,9 @@ def reconstruct(geometry, grid="auto", *, method: str = "fit", steps: int | None
     ValueError
         Empty or too small cloud (< 100 points; points with NaN or inf coordinates are left out,
         with a warning), all points coplanar, more than 1% of the given normals unusable, a cloud
-        of outliers only (it fills a volume), normals not estimable, an unknown method, an option the method does not use (``steps``, ``seed``
-        or ``device`` with ``method="learned"``), a ``plan`` given for a mesh or not a plan, or a
-        non-watertight input mesh.
+        of outliers only (it fills a volume), normals not estimable, an unknown method, an option
+        the method does not use (``steps``, ``seed`` or ``device`` with ``method="learned"``), a
+        ``plan`` given for a mesh or not a plan, or a non-watertight input mesh.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")

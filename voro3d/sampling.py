@@ -68,6 +68,7 @@ def sample_surface(mesh, n_samples: int, *, seed: int = 0, density=None) -> tupl
 
     return map_rows(samples, draws, r1, r2)
 
+
 def grid_nodes(grid: int) -> np.ndarray:
     """Nodes of a ``grid^3`` lattice spanning ``[-1, 1]^3`` inclusive.
 
