@@ -174,8 +174,9 @@ def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS
     """
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    from voro3d.geometry import raycasting_scene
+
+    scene = raycasting_scene(vertices, triangles)
     centre = 0.5 * (vertices.min(0) + vertices.max(0))
     diagonal = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     if views == 6:
@@ -192,11 +193,8 @@ def range_scan(vertices, triangles, views: int, n: int, rng, pixels=RANGE_PIXELS
         up = np.array([0.0, 0.0, 1.0]) if abs(direction[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
         rays = scene.create_rays_pinhole(RANGE_FOV, centre.tolist(), eye.tolist(), up.tolist(), *pixels).numpy()
         rays = rays.reshape(-1, 6)
-        hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
-        depth = hit["t_hit"].numpy()
-        normal = hit["primitive_normals"].numpy()
         unit = rays[:, 3:] / np.linalg.norm(rays[:, 3:], axis=1, keepdims=True)
-        seen = np.isfinite(depth) & (np.abs(np.einsum("ij,ij->i", normal, unit)) > np.cos(np.radians(RANGE_GRAZING)))
+        depth, seen = _seen_hits(scene, rays, unit)
         distance = (depth * np.linalg.norm(rays[:, 3:], axis=1)).astype(np.float64)
         distance[seen] += rng.normal(scale=noise * diagonal, size=int(seen.sum()))
         if flying:
@@ -218,10 +216,9 @@ def lidar_scan(vertices, triangles, positions: int, rng, beams: int = LIDAR_BEAM
     """Points a spinning LiDAR sees from ``positions`` places spread in longitude around the shape:
     ``beams`` lines of elevation, each swept in ``steps`` steps of azimuth, both spans covering the
     shape's bounding sphere; every hit kept (all of them: the lines are the point)."""
-    import open3d as o3d
+    from voro3d.geometry import raycasting_scene
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    scene = raycasting_scene(vertices, triangles)
     centre = 0.5 * (vertices.min(0) + vertices.max(0))
     diagonal = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     found = []
@@ -236,14 +233,24 @@ def lidar_scan(vertices, triangles, positions: int, rng, beams: int = LIDAR_BEAM
         directions = ((np.cos(elevation) * np.cos(azimuth))[..., None] * forward
                       + (np.cos(elevation) * np.sin(azimuth))[..., None] * right
                       + np.sin(elevation)[..., None] * up).reshape(-1, 3)
-        rays = np.hstack([np.repeat(eye[None], len(directions), axis=0), directions]).astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor(rays))
-        depth = hit["t_hit"].numpy().astype(np.float64)
-        facing = np.abs(np.einsum("ij,ij->i", hit["primitive_normals"].numpy(), directions))
-        seen = np.isfinite(depth) & (facing > np.cos(np.radians(RANGE_GRAZING)))
+        rays = np.hstack([np.repeat(eye[None], len(directions), axis=0), directions])
+        depth, seen = _seen_hits(scene, rays, directions)
+        depth = depth.astype(np.float64)
         depth[seen] += rng.normal(scale=RANGE_NOISE * diagonal, size=int(seen.sum()))
         found.append(eye + depth[seen, None] * directions[seen])
     return np.vstack(found)
+
+
+def _seen_hits(scene, rays, unit) -> tuple[np.ndarray, np.ndarray]:
+    """``rays`` (r, 6) cast into ``scene`` (as float32, as Open3D does): each one's hit parameter
+    (float32, inf where missed) and whether it is seen, a hit within ``RANGE_GRAZING`` of facing
+    its direction ``unit`` (r, 3), as a scanner drops grazing returns."""
+    import open3d as o3d
+
+    hit = scene.cast_rays(o3d.core.Tensor(np.asarray(rays, np.float32)))
+    depth = hit["t_hit"].numpy()
+    facing = np.abs(np.einsum("ij,ij->i", hit["primitive_normals"].numpy(), unit))
+    return depth, np.isfinite(depth) & (facing > np.cos(np.radians(RANGE_GRAZING)))
 
 
 def _depth_edges(distance, pixels, gap: float) -> np.ndarray:
