@@ -774,6 +774,8 @@ def main():
                         "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--line-ratio", type=float, help="LINE_RATIO for this run (0: no cloud is thinned along its "
                         "scan lines), the ablation beside it")
+    parser.add_argument("--sparse-spacings", type=float, help="SPARSE_SPACINGS (outlier test) for this run, the "
+                        "ablation beside it in voro3d/pointcloud/tuning.py")
     add_hull_argument(parser)
     parser.add_argument("--prefilter", action="store_true", help="Open3D's statistical outlier removal (20 neighbours, "
                         "2 deviations) on each cloud before VoroMesh, as the README advises for flying pixels")
@@ -814,6 +816,10 @@ def main():
         import voro3d.pointcloud.scanlines as scanlines_module
 
         scanlines_module.LINE_RATIO = args.line_ratio
+    if args.sparse_spacings is not None:
+        import voro3d.pointcloud.preprocess as preprocess_module
+
+        preprocess_module.SPARSE_SPACINGS = args.sparse_spacings
     set_hull_margin(args)
     from voro3d.io import MESH_SUFFIXES, load_mesh
 
@@ -831,6 +837,7 @@ def main():
                 sheet_support="default" if args.sheet_support is None else args.sheet_support,
                 auto_width="default" if args.auto_width is None else args.auto_width,
                 line_ratio="default" if args.line_ratio is None else args.line_ratio,
+                sparse_spacings="default" if args.sparse_spacings is None else args.sparse_spacings,
                 hull_margin="default" if args.hull_margin is None else args.hull_margin,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured,
                 prefilter=args.prefilter)

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rowblocks import map_rows
-from .tuning import (CHECK_POINTS, STATISTICS_SAMPLE, SUSPECT_FLATNESS, SUSPECT_OFFSET, TWO_SHEET_CLEARANCE, TWO_SHEET_POINTS,
-                     WALL_VOTE)
+from .tuning import (CHECK_POINTS, SPARSE_SPACINGS, STATISTICS_SAMPLE, STRAY_RATIO, SUSPECT_FLATNESS, SUSPECT_OFFSET,
+                     TWO_SHEET_CLEARANCE, TWO_SHEET_POINTS, WALL_VOTE)
 
 __all__ = ["CloudStats", "check_stride", "cloud_stats", "stride", "outlier_mask", "outlier_neighbours", "local_dimension", "fill_ratio", "merge_duplicates",
            "group_means", "separate_objects", "plane_normals", "two_sheets", "wall_points"]
@@ -318,15 +318,14 @@ def _median_residual(blocks: list) -> float:
     return float(np.sqrt(max(np.median(np.concatenate(blocks)), 0.0)))
 
 
-def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, stray_factor: float = 2.0,
-                 neighbours=None) -> np.ndarray:
+def outlier_mask(points: np.ndarray, *, tree=None, neighbours=None) -> np.ndarray:
     """True for points that look like outliers rather than surface samples.
 
     Two tests find suspects. A point whose mean distance to its ``STRAY_NEIGHBOURS`` neighbours is
-    more than ``stray_factor`` times theirs (the median) is a stray near the surface: a local version
+    more than ``STRAY_RATIO`` times theirs (the median) is a stray near the surface: a local version
     of Open3D's statistical filter, which compares with the whole cloud's mean and so would cut
     the sparse end of an unevenly sampled surface. A point whose 8th neighbour is more than
-    ``sparse_factor`` times the cloud's median distance away is in empty space, or on a part of the
+    ``SPARSE_SPACINGS`` times the cloud's median distance away is in empty space, or on a part of the
     surface sampled far more sparsely than the rest. A suspect that lies on the plane of its
     neighbours, which lie on it too (:func:`_on_sheet`), is that sparse surface and stays: scattered
     outliers have neither. Last, clumps far from the rest (:func:`_small_clusters`).
@@ -344,9 +343,9 @@ def outlier_mask(points: np.ndarray, *, tree=None, sparse_factor: float = 6.0, s
     distance, neighbour = (table[:, :STRAY_NEIGHBOURS + 1] for table in
                            (outlier_neighbours(points, tree=tree) if neighbours is None else neighbours))
     spacing = distance[:, SPACING_NEIGHBOURS]
-    suspect = spacing > sparse_factor * np.median(spacing)
+    suspect = spacing > SPARSE_SPACINGS * np.median(spacing)
     mean = distance[:, 1:].mean(axis=1)
-    suspect |= mean > stray_factor * _neighbour_median(mean, neighbour[:, 1:])
+    suspect |= mean > STRAY_RATIO * _neighbour_median(mean, neighbour[:, 1:])
     index = np.flatnonzero(suspect)
     suspect[index[_on_sheet(points, neighbour[index])]] = False
     distance = distance[:, :SPACING_NEIGHBOURS + 1].copy()  # all _small_clusters needs

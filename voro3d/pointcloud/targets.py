@@ -74,7 +74,11 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
             # 1 s, cow 5k 2.6 -> 3.4 s; 2026-12-05. Nor does foreseeing the refusal with a coarse solve:
             # on 59 Poisson targets of the 12 benchmark meshes (3 and 6 views, a third missing, 5k,
             # 1% noise), depth 6 on 6000 of the points took 0.28-0.65 s a cloud, 24.5 s in all, to
-            # spare the 15.2 s of the 6 refused solves, and refused one kept (homer from 3 views).)
+            # spare the 15.2 s of the 6 refused solves, and refused one kept (homer from 3 views). Nor the
+            # points' winding number, which Poisson's indicator follows far from the points: its largest value
+            # over the box's faces pushed 0.04-0.2 diagonals out, less or not its mean at the points, on 221
+            # solves of the 38 dev meshes (38 refused, 104 of the 600 s solving) spares at most 3 refused
+            # solves without refusing a kept one: bench_poisson_foresight.py, poisson_foresight.md.)
             target, why = None, f"Poisson refused: its surface ran {escape:.0%} of the diagonal out of the points' box"
         else:
             target, why = carve_sightlines(target, points, normals, stats.median_spacing, resolution)

@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_BOUNDARY_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "SHELL_ROUNDING_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_SUPPORT", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "LINE_RATIO", "LINE_SAMPLE", "THIN_ROUNDS", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_BOUNDARY_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "SHELL_ROUNDING_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WIN", "SHEET_SUPPORT", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "LINE_RATIO", "LINE_SAMPLE", "THIN_ROUNDS", "SPARSE_SPACINGS", "STRAY_RATIO", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
@@ -16,13 +16,12 @@ WIDTH_PER_SPACING = 1.5
 TRUSTED_WIDTH_PER_SPACING = 0.75
 WIDTH_PER_NOISE = 4.0
 MAX_TRUSTED_OUTLIERS = 0.01
-# A noisy cloud gets a second IMLS pass from the normals of the first before its points move (moving
-# them twice shrinks curved parts: bunny and armadillo at 0.5% noise, CD +16-24%). On four dev shapes
-# at 0.5% noise: the target's CD 4-9% lower, NC +0.010-0.012, triangles > 30 deg off the true normal
-# 8.4-8.9% -> 5.5% (bunny, rocker-arm); a third pass gains no more. Not where the first pass's mean
-# normals mostly cancel (median length under this): the two sides of walls thinner than the noise,
-# whose normals the second pass mixes (a cup lid at 1% noise: 0.46, CD 21 -> 64 with it; other dev
-# shapes at 0.25-1% noise read 0.64-0.98).
+# A noisy cloud gets a second IMLS pass from the normals of the first before its points move (moving them twice
+# shrinks curved parts: bunny and armadillo at 0.5% noise, CD +16-24%). On four dev shapes at 0.5% noise: the target's
+# CD 4-9% lower, NC +0.010-0.012, triangles > 30 deg off the true normal 8.4-8.9% -> 5.5% (bunny, rocker-arm); a third
+# pass gains no more. Not where the first pass's mean normals mostly cancel (median length under this): the two sides
+# of walls thinner than the noise, whose normals the second pass mixes (a cup lid at 1% noise: 0.46, CD 21 -> 64 with
+# it; other dev shapes at 0.25-1% noise read 0.64-0.98).
 MIN_NORMAL_AGREEMENT = 0.6
 # Given normals whose signs disagree between this share of neighbours on one sheet
 # (:func:`~voro3d.pointcloud.normals.sign_disagreement`) are re-oriented by our orienter. 30k points of each of
@@ -47,9 +46,8 @@ MAX_TIE_WEIGHT = 1.0
 # what random signs would give) has no outward side of its own, and faces the rest of the cloud (a table whose edge is
 # out of view faces what stands on it). Wrongly signed normals as above (mean %), 0 / 3 / 10 sigmas: on the cropped
 # plate 21.2 / 11.0 / 10.4 from 1 view, 16.3 / 7.7 / 7.0 from 3; the object held 3% of its diagonal above the cropped
-# plate (apart, as a ball's point contact scans) 29.2 / 2.5 / 3.1 and 23.8 / 2.2 / 0.6 (the rule before the parts: 24.0
-# and 31.1); on the whole plate from 1 view 1.11 / 1.10 / 2.03, the object held above it 0.73 / 0.73 / 1.64 (before the
-# parts 12.9); the rest within 0.1.
+# plate (apart) 29.2 / 2.5 / 3.1 and 23.8 / 2.2 / 0.6 (before the parts: 24.0 and 31.1); on the whole plate from 1
+# view 1.11 / 1.10 / 2.03, the object held above it 0.73 / 0.73 / 1.64 (before the parts 12.9); the rest within 0.1.
 UNDECIDED_SIGMAS = 3.0
 # Fine-scale noise (about a quadric through 9 neighbours: curvature is not noise) over this share of the spacing turns
 # on the smoothing (plan denoise "auto"). 12 benchmark meshes x 17 conditions: clean ones 0-0.083, 0.25-1% noise and
@@ -75,9 +73,8 @@ FILTER_WIDTH_PER_NOISE = 2.0
 # up to 1.15x / 1.5x; 1k-2k: grid 32. Rerun: bench_pointcloud.py --grid auto --no-poisson --auto-width 2.0.
 AUTO_SPACINGS_PER_VOXEL = 2.5
 AUTO_GRID_RANGE = (32, 128)
-# grid="auto" fits an adaptive band (voro3d.generators.AdaptiveBand) from the finest grid up to
-# voxels of this grid, splitting a voxel while its target surface is further than BAND_TOLERANCE
-# finest voxels (rms) from a plane.
+# grid="auto" fits an adaptive band (voro3d.generators.AdaptiveBand) from the finest grid up to voxels of this grid,
+# splitting a voxel while its target surface is further than BAND_TOLERANCE finest voxels (rms) from a plane.
 COARSEST_GRID = 32
 BAND_TOLERANCE = 0.05
 # The target surface's resolution follows the grid up to this one (Poisson depth 8), finer only
@@ -126,24 +123,22 @@ MAX_REFINE = 2
 DETAIL_SPACINGS = 2.0
 # A voxel narrower than the median spacing has empty voxels all over the surface.
 MIN_SPACINGS_PER_VOXEL = 1.0
-# Clean points closer than this share of a voxel are dense: exact samples themselves, and their
-# winding number decides inside near the surface (:class:`~voro3d.pointcloud.surface.TargetSurface`).
-# Range scans of 30k points sit at 0.32-0.45 voxel at grid 64; at 1/3, the 3-view scans at 0.32-0.33
-# (fandisk, cow, thingi32_75655 of the 12 benchmark meshes) were dense and came out scaly: the
-# winding number of points with depth noise and uneven coverage labels the cells near the surface
-# (cow NC 0.842, against 0.884 at 1/4 and CD 24.6 against 21.4). 3-view scans of the 12, mean CD / NC /
-# F1 at 1/3 and 1/4: 71.3 / 0.869 / 0.655 and 72.4 / 0.876 / 0.661; the dev clouds of 10^5 points and
-# more read 0.16-0.22 and stay dense. Rerun: bench_pointcloud.py --dense-spacings 0.3333.
+# Clean points closer than this share of a voxel are dense: exact samples themselves, and their winding number decides
+# inside near the surface (:class:`~voro3d.pointcloud.surface.TargetSurface`). Range scans of 30k points sit at
+# 0.32-0.45 voxel at grid 64; at 1/3, the 3-view scans at 0.32-0.33 (fandisk, cow, thingi32_75655 of the 12 benchmark
+# meshes) were dense and came out scaly: the winding number of points with depth noise and uneven coverage labels the
+# cells near the surface (cow NC 0.842, against 0.884 at 1/4 and CD 24.6 against 21.4). 3-view scans of the 12, mean
+# CD / NC / F1 at 1/3 and 1/4: 71.3 / 0.869 / 0.655 and 72.4 / 0.876 / 0.661; the dev clouds of 10^5 points and more
+# read 0.16-0.22 and stay dense. Rerun: bench_pointcloud.py --dense-spacings 0.3333.
 DENSE_SPACINGS = 1 / 4
 # Proxy samples fill the holes of a dense cloud where no point is within this many voxels (nearer,
 # they only blur the exact points: 2 spacings added 13% proxy samples on organic_arm, NC 0.979 -> 0.968).
 HOLE_VOXELS = 1.0
-# Inside cells in groups (joined by Voronoi faces) of fewer cells than this share of the largest
-# group's are strays: cells whose label the samples nearby could not settle; outside cells cut off
-# from the exterior in groups under this share of its cells are bubbles (pointcloud.debris). A 3-view
-# range scan of fandisk (HOLE_LEVEL 0.42) held bubbles of 14 and 46 cells against 5,725 exterior
-# ones, cavities a voxel under its top: 3 pieces, 1 with the rule (bubbles of at most 8 cells only
-# before it); no other of the 144 benchmark outputs had more pieces than its cloud has islands.
+# Inside cells in groups (joined by Voronoi faces) of fewer cells than this share of the largest group's are strays:
+# cells whose label the samples nearby could not settle; outside cells cut off from the exterior in groups under this
+# share of its cells are bubbles (pointcloud.debris). A 3-view range scan of fandisk (HOLE_LEVEL 0.42) held bubbles of
+# 14 and 46 cells against 5,725 exterior ones, cavities a voxel under its top: 3 pieces, 1 with the rule (bubbles of
+# at most 8 cells only before it); no other of the 144 benchmark outputs had more pieces than its cloud has islands.
 STRAY_CELL_SHARE = 0.02
 # Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points enclose a volume (0.5
 # closed, about 0 for a one-sided scan): their target is screened Poisson. Ablation, range scans of 12 dev meshes
@@ -199,34 +194,32 @@ SHELL_DEPTH = 0.125
 # 248.7, NC 0.722 -> 0.721, F1 0.350 either way; 3 and 6 views read closed (no limit). This bound at 2 / 4 / 8 nodes:
 # 1 view CD 248.7 / 248.7 / 249.8. Rerun: bench_scenes.py --shell-depth uniform.
 THINNEST_SHELL_NODES = 4.0
-# Where the depth limit meets the IMLS target's own far field (the winding number's level set, behind an open
-# scan's seen side), their crease is rounded over this many nodes of the field's grid (fields.smooth_maximum):
-# where the two nearly coincide, a sharp intersection showed each place they cross as terraces and rings on the
-# shell's back. 12 benchmark meshes, no normals, grid 64, far field as a distance, no blend (2026-12-06), range
-# scans from 1 view, rounding 0 / 0.75 / 1.5 / 3 / 6 nodes: CD 209.2 / 209.4 / 209.5 / 210.3 / 235.3 (at 6 the
-# elephant's thin parts cut, 262 -> 522), NC 0.7313 / 0.7323 / 0.7340 / 0.7381 / 0.7479, F1 0.3673 / 0.3684 /
-# 0.3690 / 0.3727 / 0.3841; from 3 views (7 IMLS targets) CD 45.78 / 45.74 / 45.61 / 45.34 / 44.65, NC 0.8953 /
-# 0.8953 / 0.8955 / 0.8958 / 0.8966. At 1.5 / 3: pointcloud_range_more's 16 from 1 view CD 442.9 / 446.7, NC
-# 0.7614 / 0.7638, from 3 views 69.1 / 68.9, NC 0.9173 both; objects on a table (bench_scenes.py) from 1 view
-# 134.5 / 132.5, NC 0.816 / 0.820, F1 0.330 / 0.334, from 3 views 84.7 / 83.5, 0.903 / 0.904, 0.459 / 0.464.
-# Rerun, both with --no-poisson: bench_pointcloud.py --conditions "range scan 1 view" "range scan 3 views"; bench_scenes.py.
-# Not kept (2026-12-06), with this rounding: the IMLS band (surface.IMLS_BAND) giving way to the far field over
-# its last 1 / 2 kernel widths, so that past the rim of a seen patch (a scan's silhouette) the band's edge, a
-# union of balls, shows no crust. 12 meshes from 1 view CD 210.3 -> 211.3 / 211.9, NC 0.7381 -> 0.7460 / 0.7490;
-# 3 views 45.34 -> 45.13 / 45.15, NC 0.8958 -> 0.9034 / 0.9064; range_more's 16 from 1 view NC 0.7638 -> 0.7744
-# / 0.7781, 3 views 0.9173 -> 0.9208 / 0.9231; on a table NC 0.820 / 0.904 -> 0.831 / 0.915 (at 2). But the
-# blend cut what the band held across an unseen gap: the elephant from 3 views lost a foot and cheburashka from
-# 1 view an ear (two pieces each). The far field capped at the distance to the points, without it, split an
-# armadillo on a table from 3 views.
+# Where the depth limit meets the IMLS target's own far field (the winding number's level set, behind an open scan's
+# seen side), their crease is rounded over this many nodes of the field's grid (fields.smooth_maximum): where the two
+# nearly coincide, a sharp intersection showed each place they cross as terraces and rings on the shell's back. 12
+# benchmark meshes, no normals, grid 64, far field as a distance, no blend (2026-12-06), range scans from 1 view,
+# rounding 0 / 0.75 / 1.5 / 3 / 6 nodes: CD 209.2 / 209.4 / 209.5 / 210.3 / 235.3 (at 6 the elephant's thin parts cut,
+# 262 -> 522), NC 0.7313 / 0.7323 / 0.7340 / 0.7381 / 0.7479, F1 0.3673 / 0.3684 / 0.3690 / 0.3727 / 0.3841; from 3
+# views (7 IMLS targets) CD 45.78 / 45.74 / 45.61 / 45.34 / 44.65, NC 0.8953 / 0.8953 / 0.8955 / 0.8958 / 0.8966. At
+# 1.5 / 3: pointcloud_range_more's 16 from 1 view CD 442.9 / 446.7, NC 0.7614 / 0.7638, from 3 views 69.1 / 68.9, NC
+# 0.9173 both; objects on a table (bench_scenes.py) from 1 view 134.5 / 132.5, NC 0.816 / 0.820, F1 0.330 / 0.334,
+# from 3 views 84.7 / 83.5, 0.903 / 0.904, 0.459 / 0.464. Rerun, both with --no-poisson: bench_pointcloud.py
+# --conditions "range scan 1 view" "range scan 3 views"; bench_scenes.py. Not kept (2026-12-06), with this rounding:
+# the IMLS band (surface.IMLS_BAND) giving way to the far field over its last 1 / 2 kernel widths, so that past the
+# rim of a seen patch (a scan's silhouette) the band's edge, a union of balls, shows no crust. 12 meshes from 1 view
+# CD 210.3 -> 211.3 / 211.9, NC 0.7381 -> 0.7460 / 0.7490; 3 views 45.34 -> 45.13 / 45.15, NC 0.8958 -> 0.9034 /
+# 0.9064; range_more's 16 from 1 view NC 0.7638 -> 0.7744 / 0.7781, 3 views 0.9173 -> 0.9208 / 0.9231; on a table NC
+# 0.820 / 0.904 -> 0.831 / 0.915 (at 2). But the blend cut what the band held across an unseen gap: the elephant from
+# 3 views lost a foot and cheburashka from 1 view an ear (two pieces each). The far field capped at the distance to
+# the points, without it, split an armadillo on a table from 3 views.
 SHELL_ROUNDING_NODES = 3.0
-# Pieces of an open cloud's solid (or of the offset shell) closer than this, fit-frame units (about
-# 12% of the diagonal), are joined by a rod (fields.bridge): patches one viewpoint sees apart (a
-# cow seen from behind: rump, head and a leg, 0.04-0.09 apart; an elephant's trunk, 0.15). Range
-# scans of the 12 dev meshes, grid 64, same session, no bridges (0) / 0.25: one view one piece
-# 75% / 92% (cow 3 -> 1, elephant 2 -> 1 pieces; thingi32_252119's shell is joined in the target
-# but its thin waist parts in the fit, 3 -> 2), mean CD 341.5 / 339.5, NC 0.722 / 0.720, F1 0.334 /
-# 0.334; three and six views have no gap to bridge (every figure the same). Clouds that read closed
-# are never bridged: two objects side by side stay two. Rerun: bench_pointcloud.py --bridge-gap 0.
+# Pieces of an open cloud's solid (or of the offset shell) closer than this, fit-frame units (about 12% of the
+# diagonal), are joined by a rod (fields.bridge): patches one viewpoint sees apart (a cow seen from behind: rump, head
+# and a leg, 0.04-0.09 apart; an elephant's trunk, 0.15). Range scans of the 12 dev meshes, grid 64, same session, no
+# bridges (0) / 0.25: one view one piece 75% / 92% (cow 3 -> 1, elephant 2 -> 1 pieces; thingi32_252119's shell is
+# joined in the target but its thin waist parts in the fit, 3 -> 2), mean CD 341.5 / 339.5, NC 0.722 / 0.720, F1 0.334
+# / 0.334; three and six views have no gap to bridge (every figure the same). Clouds that read closed are never
+# bridged: two objects side by side stay two. Rerun: bench_pointcloud.py --bridge-gap 0.
 MAX_BRIDGE_GAP = 0.25
 # A Poisson surface that runs further than this share of the diagonal out of the points' box is refused
 # (:meth:`~voro3d.pointcloud.poisson.PoissonSurface.escape`). Ablation on all 38 dev meshes, grid 64 (2026-12-05): it
@@ -322,19 +315,17 @@ SHEET_OFFSET = 1.6
 # -> 5.2), F1 higher on all 12 (0.107 -> 0.346), NC -0.003 to -0.043 (mean -0.018).
 SHEET_HUG = 0.16
 # A cloud's mesh is refused by voro3d.reconstruct, not returned, when it encloses more than this many times the volume
-# of the points' convex hull, or when the median point lies more than this many voxels off it beyond
-# the offset its target keeps by design (the sheet's: a cup lid at 5k points, whose shell sits 1.0
-# voxel off the points, was refused before it counted).
-# Measured on outputs that are right (3 dev meshes x clean 5k / noise 1% / outliers 2% / third
-# missing, the 4 dev scans): volume 0.28-0.91 of the hull, 2.17 for point_set_3 (its unseen
-# underside closed below the base plane); median distance 0.009-0.23 voxel. The volume test only
-# catches gross balloons: a one-view range scan of abc_00000005 is closed at 8.3 times the hull of
-# the side it saw, a torus whose estimate_normals() signs were trusted (before the sign check) 7.5.
+# of the points' convex hull, or when the median point lies more than this many voxels off it beyond the offset its
+# target keeps by design (the sheet's: a cup lid at 5k points, whose shell sits 1.0 voxel off the points, was refused
+# before it counted). Measured on outputs that are right (3 dev meshes x clean 5k / noise 1% / outliers 2% / third
+# missing, the 4 dev scans): volume 0.28-0.91 of the hull, 2.17 for point_set_3 (its unseen underside closed below the
+# base plane); median distance 0.009-0.23 voxel. The volume test only catches gross balloons: a one-view range scan of
+# abc_00000005 is closed at 8.3 times the hull of the side it saw, a torus with estimate_normals() signs trusted
+# (before the sign check) 7.5.
 MAX_HULL_VOLUME = 10.0
 MAX_MEDIAN_DISTANCE = 1.0
-# Both are read from every k-th point, at most CHECK_POINTS of them. Against all 10^6 points of 3 dev
-# meshes (Poisson depth 7 meshes of them, 2026-12-04): volume ratio within 0.2%, median distance within
-# 0.3%; 0.14-0.17 s instead of 1.5-2.0 s.
+# Both read every k-th point, at most CHECK_POINTS. Against all 10^6 points of 3 dev meshes (Poisson depth 7 meshes of
+# them, 2026-12-04): volume ratio within 0.2%, median distance within 0.3%; 0.14-0.17 s instead of 1.5-2.0 s.
 CHECK_POINTS = 100_000
 # Lines of sight (voro3d.pointcloud.sightlines): a point is seen from within SIGHT_ANGLE degrees of its normal (the
 # range scans of bench_pointcloud drop hits beyond 75 degrees), tested along SIGHT_LINES lines of that cone; a line
@@ -398,17 +389,26 @@ CLOUD_SAMPLES_PER_FACE = 75
 # meshes x clean 20k / 0.5% noise / 3-view range scans: searches 4-6 -> 2-3, fit CPU 0.61-1.04x; mean CD -0.1% / +0.5%
 # / 0.0% (worst +1.1%, on noise), NC at worst -0.0010 / -0.0008 / -0.0020.
 CLOUD_REFRESH_VOXELS = 2.5
+# A point is suspected (preprocess.outlier_mask) whose 8th neighbour lies over SPARSE_SPACINGS times the median
+# 8th-neighbour distance away, or whose mean distance to 20 neighbours is over STRAY_RATIO times theirs (median).
+# Sparse 6 / 4 / 3, 12 benchmark meshes (2026-12-07): flying pixels from 3 views CD 150.0 / 126.1 / 125.3, one piece
+# 83 / 75 / 100%, 1 view 189.3 / 166.0 / 171.3; range scans 1 view 138.8 / 141.9 / 144.3, ramp 0.553 / 0.556 / 0.571.
+# 26 other dev meshes, 6 / 4: flying 3 views 182.2 / 149.9, F1 0.596 / 0.586, one piece 96 / 92%; 1 view 237.7 /
+# 235.4; ramp 17.29 / 17.31. Kept: lower, flying pixels gain erratically (x0.15 to x4.5 a shape) and sparse surface
+# goes. Stray 1.5 / 2 / 3, on 6 meshes, dropped: 5246 / 5114 / 4569 of 5,275 uniform outliers, 2949 / 2313 / 1311 of
+# 3,639 flying pixels, 171 / 17 / 4 of 157k 3-view range points. Rerun: bench_pointcloud.py --sparse-spacings 4.
+SPARSE_SPACINGS = 6.0
+STRAY_RATIO = 2.0
 # A point the outlier tests suspect (preprocess.outlier_mask: sparse, or a stray) stays when it and its 20 neighbours
 # lie within SUSPECT_FLATNESS of their in-plane spread (RMS) of one plane, itself within SUSPECT_OFFSET (the centre of
 # a curved patch sits off the patch's plane by about twice its RMS): a part of the surface sampled far more sparsely
-# than the rest. Suspects kept, over the 12 benchmark meshes, flatness 0.1 and offset 0.1 / 0.15 / 0.2: the uniform
-# outliers of "outliers 2%" 0 / 1 / 1 of 10,359 (both at 0.15: 33); 1% noise 0 of 234; the dev scan radar.xyz (a
-# sphere sampled 100 times more densely in places) 476 / 490 / 496 of 502; a unit sphere of 150k points with a cap
-# sampled 100 times more sparsely 420 / 487 / 487 of 487 (45k points, cap spacing 0.36 of the radius: 47 / 101 / 115
-# of 149); 1-view range scans 38 / 41 / 45 of 100 (grazing silhouettes). Mean distance from the scan points to the
-# mesh, in diagonals, before -> after (with the clumps of _small_clusters kept when among the rest): radar 2.99e-3
-# (1,147 points dropped, a side left open) -> 1.26e-4 (12 dropped, closed; Poisson 6.06e-4), hippo2 8.96e-4 -> 5.43e-4
-# (Poisson 7.08e-4).
+# than the rest. Suspects kept, 12 benchmark meshes, flatness 0.1 and offset 0.1 / 0.15 / 0.2: the uniform outliers of
+# "outliers 2%" 0 / 1 / 1 of 10,359 (both at 0.15: 33); 1% noise 0 of 234; the dev scan radar.xyz (a sphere sampled
+# 100 times more densely in places) 476 / 490 / 496 of 502; a unit sphere of 150k points with a cap sampled 100 times
+# more sparsely 420 / 487 / 487 of 487 (45k points, cap spacing 0.36 of the radius: 47 / 101 / 115 of 149); 1-view
+# range scans 38 / 41 / 45 of 100 (grazing silhouettes). Mean scan point distance to the mesh (diagonals), before ->
+# after (clumps of _small_clusters kept among the rest): radar 2.99e-3 (1,147 points dropped, a side left open) ->
+# 1.26e-4 (12 dropped, closed; Poisson 6.06e-4), hippo2 8.96e-4 -> 5.43e-4 (Poisson 7.08e-4).
 SUSPECT_FLATNESS = 0.1
 SUSPECT_OFFSET = 0.15
 # Statistics of large clouds are medians or means over a random subset of this many points
