@@ -382,22 +382,22 @@ Two faults of merged real scans, on the 12 benchmark meshes, all three methods i
 `--conditions "misaligned range scan 3 views" ... --alpha-wrap`). *Misaligned*: each view moved by its
 own small rigid motion, as registration leaves merged scans (a turn of N(0, 0.3) degrees, a shift of
 N(0, 0.2%) of the diagonal per axis): VoroMesh has the lower CD and the higher NC and F1 than both
-Open3D's pipeline and `alpha_wrap_3` from 3 and from 6 views (CD 40.3 / 1.93 against 555.5 / 18.0 and
-69.5 / 3.79), every output closed and in one piece; the doubled layers leave striped patches where
-views overlap at a slant (fandisk's arch, in the picture). thingi32_252119's 3-view row rerun after the
-noise reading's change (it flipped to clean: CD 25.8 -> 13.5). *Flying pixels*: half the pixels beside a
+Open3D's pipeline and `alpha_wrap_3` from 3 and from 6 views (CD 41.1 / 1.93 against 555.5 / 17.9 and
+70.3 / 3.78), every output closed and in one piece; the doubled layers leave striped patches where
+views overlap at a slant (fandisk's arch, in the picture). *Flying pixels*: half the pixels beside a
 depth edge return a depth up to 10% of the diagonal behind it, as a time-of-flight camera's mixed
 pixels do unless its driver filters them. VoroMesh keeps the lower CD and the higher NC against
-Open3D's pipeline (1 view 189.1 against 1839.4, 3 views 148.3 against 428.6) and against alpha wrap from
-1 view (253.3), but **not from 3 views: 148.3 against alpha wrap's 65.6**. Our outlier test removes
+Open3D's pipeline (1 view 189.3 against 1838.5, 3 views 150.0 against 428.8) and against alpha wrap from
+1 view (253.5), but **not from 3 views: 150.0 against alpha wrap's 65.7**. Our outlier test removes
 33-74% of the flying points over 1% of the diagonal off the surface (bunny, fandisk, cow and
 thingi32_75655, 1 and 3 views) and keeps the rest as part of a surface: about half of them are no
 sparser than the surface's sparse parts (53-76% suspected with the flat-sheet rescue off), and the
 rest lie on the sheet of rays behind the edge, as a sparsely sampled surface lies on its plane, so
 the rescue keeps them. Poisson and the IMLS closure then grow fins and blocks
-along them (thingi32_75655 from 3 views CD 911.3 against alpha wrap's 35.4; the cow's fins under its
-belly and one 2% piece of them apart, the one output in two pieces). Telling them apart needs the
-views' positions, which the points do not carry. 2.20x Open3D's pipeline summed.""",
+along them (thingi32_75655 from 3 views CD 916.3 against alpha wrap's 35.6; the cow's fins under its
+belly and one 2% piece of them apart; thingi32_252119 in two pieces too). A lower threshold for sparse
+points gains on them erratically (`SPARSE_SPACINGS`' ablation in `tuning.py`). Telling them apart needs the
+views' positions, which the points do not carry. 2.28x Open3D's pipeline summed (rerun 2026-12-07 16:20).""",
     "pointcloud_prefilter": """\
 What the README advises for flying pixels, measured: Open3D's statistical outlier removal (20
 neighbours, 2 deviations) on each cloud before VoroMesh (`bench_pointcloud.py --prefilter
