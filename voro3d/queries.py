@@ -10,7 +10,6 @@ from . import rowblocks
 from ._validate import as_points, positive_int
 from .geometry import raycasting_scene
 from .io import mesh_arrays
-from .rowblocks import map_rows
 from .sampling import grid_nodes
 from .topology import welded_edge_counts
 
@@ -123,7 +122,7 @@ def winding_number(mesh_vertices, mesh_triangles, queries, *, chunk: int | None 
         return angles.sum(axis=1) / (2.0 * np.pi)
 
     # numpy releases the GIL inside large array operations, so the blocks' threads share the cores.
-    return map_rows(winding, queries, block=chunk)
+    return rowblocks.map_rows(winding, queries, block=chunk)
 
 
 class InsideOutside:

@@ -316,7 +316,8 @@ def _read(geometry):
         keep = finite_rows(array, "points", stacklevel=4)
         if keep is not None:
             points = array[keep]
-            normals, colors = (None if a is None or len(a) != len(keep) else np.asarray(a)[keep] for a in (normals, colors))
+            # An Open3D cloud's normals and colours count as present only at the points' length, as an (n, 6) array's.
+            normals, colors = (None if a is None else a[keep] for a in (normals, colors))
     points = as_points(points, "points", min_count=0)
     if colors is not None:
         colors = np.asarray(colors, np.float64)
