@@ -1062,6 +1062,25 @@ def test_walls_thinner_than_the_spacing_get_the_sheet_target():
     assert not InsideOutside(out).occupancy(under_the_lid).any()
 
 
+def test_a_densely_sampled_bowl_stays_hollow():
+    """Walls 1.6 spacings thick: the IMLS target runs through both sides and passes the points, but closes
+    the bowl's opening and fills it (a dome, CD 334) until the points spanning its walls send it to the shell."""
+    from manifold3d import Manifold
+
+    from voro3d.queries import InsideOutside
+
+    bowl = Manifold.sphere(1.0, 96) - Manifold.sphere(0.96, 96) - Manifold.cube([4.0, 4.0, 2.0]).translate([-2.0, -2.0, 0.0])
+    mesh = bowl.to_mesh()
+    vertices, triangles = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+    points, _ = sample_surface((vertices, triangles), 20000, seed=0)
+    shape, target, info = reconstruct_points(points, grid=64, steps=100)
+    out = shape.to_open3d()
+    assert info.target == "sheet"
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    assert evaluate(out, (vertices, triangles), n_samples=20000)["chamfer_x1e5"] < 10
+    assert not InsideOutside(out).occupancy(np.array([[0.0, 0.0, -0.5]])).any()  # in the bowl's hollow
+
+
 # -- chunked and subsampled statistics equal the one-query ones ------------------------------------
 
 def _one_query_stats(points, normals):

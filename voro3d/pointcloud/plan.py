@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..geometry import grid_voxel
-from .tuning import HEAVY_NOISE, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SUPPORT, SHEET_SURFACE_GATE, SHEET_WIN
+from .tuning import HEAVY_NOISE, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SUPPORT, SHEET_SURFACE_GATE, SHEET_WALLS, SHEET_WIN
 
 __all__ = ["CloudPlan", "as_plan", "NORMALS", "SWITCHES", "TARGETS"]
 
@@ -129,25 +129,28 @@ def settle_hull(plan: CloudPlan, *, closed: bool, kind: str = "imls") -> str:
     return "on" if wanted and kind != "sheet" else "off"
 
 
-def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance=None):
+def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance=None, walls: float = 0.0):
     """The offset shell of the points when it fits them much better than ``target``, else None.
 
-    Tried only when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
-    ``SHEET_SURFACE_GATE``); kept when the points hold it on both faces (its surface lies within
-    ``SHEET_SUPPORT`` spacings of them on average: a wall sampled on both sides, not one side of
-    a solid or an open sheet, whose shell has an empty face) and its misfit (mean distance points
-    -> surface plus surface -> points) is under ``SHEET_WIN`` times the target's.
-    ``distance``: the distance of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point
-    to ``target``, when already measured.
+    Tried when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
+    ``SHEET_SURFACE_GATE``) or when a share ``walls`` of at least ``SHEET_WALLS`` of the points
+    span both sides of a thin wall (passed for clouds that read closed, whose target can run
+    through both sides and still fill what the walls enclose: a bowl comes back as a dome). Kept
+    when the points hold it on both faces (its surface lies within ``SHEET_SUPPORT`` spacings of
+    them on average: a wall sampled on both sides, not one side of a solid or an open sheet,
+    whose shell has an empty face) and its misfit (mean distance points -> surface plus surface
+    -> points) is under ``SHEET_WIN`` times the target's. ``distance``: the distance of every
+    :func:`~voro3d.pointcloud.preprocess.check_stride`-th point to ``target``, when already measured.
     """
     from .preprocess import check_stride
 
     sample = points[::check_stride(len(points))]
     to_target = float(np.mean(target.distance(sample) if distance is None else distance))
-    if to_target <= SHEET_POINTS_GATE * spacing:
+    walled = walls >= SHEET_WALLS
+    if to_target <= SHEET_POINTS_GATE * spacing and not walled:
         return None
     strays = _surface_to_points(target, points)
-    if strays <= SHEET_SURFACE_GATE * spacing:
+    if strays <= SHEET_SURFACE_GATE * spacing and not walled:
         return None
     sheet = sheet_target(points, spacing, resolution)
     held = _surface_to_points(sheet, points)

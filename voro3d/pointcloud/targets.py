@@ -94,7 +94,9 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         target = clip_to_hull(target, points, resolution)
     if choice == "auto" and not target.dense:
         distance = target.distance(given[::check_stride(len(given))])
-        sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance)
+        # A closed cloud's target closes its holes, and so fills what thin walls enclose (a bowl as a dome).
+        walls = float(np.mean(stats.walls)) if closed and stats.walls is not None else 0.0
+        sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance, walls=walls)
         return ("sheet", sheet, None, why) if sheet is not None else (kind, target, distance, why)
     return kind, target, None, why
 
