@@ -532,7 +532,7 @@ def write(out: Path, meta, rows, scans):
     loads = "; ".join(f"{run['date']}: load average {run['load_before']} before, {run['load_after']} after" for run in runs)
     lines = [f"# Point clouds as they come -> watertight meshes ({meta['machine']}; "
              f"{'merged runs, ' if len(runs) > 1 else ''}{loads})", "",
-             f"Clouds without normals sampled from {len({r['shape'] for r in rows})} dev meshes. VoroMesh: "
+             f"Clouds without normals sampled from {len({r['shape'] for r in rows})} {meta.get('meshes', 'dev meshes')}. VoroMesh: "
              f"`voro3d.pointcloud.reconstruct_points(points, grid={meta['grid']})`, then `cloud_mesh`. Poisson: Open3D statistical "
              f"outlier removal (20, 2.0), normals (30 neighbours), tangent-plane orientation "
              f"({meta.get('orient_neighbours', 30)} neighbours; after "
@@ -702,6 +702,11 @@ def _runs(meta) -> list:
                                      load_after=meta.get("load_after", "?"))]
 
 
+def _meshes(folder: Path) -> str:
+    """What the results' meshes are, for their header: the dev meshes, or those of another folder."""
+    return "dev meshes" if folder.resolve() == (SHARED / "dev").resolve() else f"meshes of `{folder}`"
+
+
 def merge(sources, out: Path, folder: Path):
     runs = [json.loads(Path(source).read_text()) for source in sources]
     # A --no-poisson run has no baseline of its own and merges with any.
@@ -722,7 +727,8 @@ def merge(sources, out: Path, folder: Path):
         for entry in _runs(run["meta"]):
             listed.setdefault(entry["date"], entry)
     pictured = sorted({shape for run in runs for shape in run["meta"].get("pictured", PICTURED)})
-    meta = dict(runs[0]["meta"], runs=list(listed.values()), orient_neighbours=min(baselines, default=30), pictured=pictured)
+    meta = dict(runs[0]["meta"], runs=list(listed.values()), orient_neighbours=min(baselines, default=30), pictured=pictured,
+                meshes=_meshes(folder))
     rows = [rows[k] for k in sorted(rows, key=lambda k: (list(CONDITIONS).index(k[1]), k[0]))]
     scans = [scans[k] for k in sorted(scans)]
     write(out, meta, rows, scans)
@@ -840,7 +846,7 @@ def main():
                 sparse_spacings="default" if args.sparse_spacings is None else args.sparse_spacings,
                 hull_margin="default" if args.hull_margin is None else args.hull_margin,
                 orient_neighbours=ORIENT_NEIGHBOURS, no_poisson=args.no_poisson, pictured=args.pictured,
-                prefilter=args.prefilter)
+                prefilter=args.prefilter, meshes=_meshes(args.folder))
     paths = [] if args.no_shapes else sorted(p for p in args.folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if args.shapes:
         paths = [p for p in paths if p.name in args.shapes]
