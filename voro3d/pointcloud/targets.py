@@ -56,8 +56,8 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         Of every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point of ``given`` to the
         target, where the rule measured it.
     why : str
-        For the plan's report: why a closed cloud's target is not Poisson, or why its Poisson
-        target was not carved; empty otherwise.
+        For the plan's report: why a closed cloud's target is not Poisson, why its Poisson
+        target was not carved, or why the target is the shell; empty otherwise.
     """
     if choice == "sheet":
         return "sheet", sheet_target(given, stats.median_spacing, resolution), None, ""
@@ -97,7 +97,10 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         # A closed cloud's target closes its holes, and so fills what thin walls enclose (a bowl as a dome).
         walls = float(np.mean(stats.walls)) if closed and stats.walls is not None else 0.0
         sheet = sheet_if_closer(target, given, stats.median_spacing, resolution, distance=distance, walls=walls)
-        return ("sheet", sheet, None, why) if sheet is not None else (kind, target, distance, why)
+        if sheet is None:
+            return kind, target, distance, why
+        shell = f"a shell around the points fits them much closer than the {kind} target (walls sampled on both sides)"
+        return "sheet", sheet, None, f"{why}; {shell}" if why else shell
     return kind, target, None, why
 
 
