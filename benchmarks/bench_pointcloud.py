@@ -704,7 +704,8 @@ def _runs(meta) -> list:
 
 def _meshes(folder: Path) -> str:
     """What the results' meshes are, for their header: the dev meshes, or those of another folder."""
-    return "dev meshes" if folder.resolve() == (SHARED / "dev").resolve() else f"meshes of `{folder}`"
+    dev = folder is None or folder.resolve() == (SHARED / "dev").resolve()  # None: no dev data, scans alone
+    return "dev meshes" if dev else f"meshes of `{folder}`"
 
 
 def merge(sources, out: Path, folder: Path):

@@ -143,15 +143,14 @@ STRAY_CELL_SHARE = 0.02
 # Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points enclose a volume (0.5
 # closed, about 0 for a one-sided scan): their target is screened Poisson. Ablation, range scans of 12 dev meshes
 # (bench_pointcloud, grid 64): every cloud taken as closed (this level at -1) gave CD 6,500-10,700 on 10 of the 12
-# one-view scans and 7 of the 12 three-view ones (their Poisson surface ran off, and the IMLS target then lacked the
-# one-sided scans' smoothing pass) against 35-3,400 and 4.5-1,270 with it. The other way, every cloud's target IMLS
-# (no Poisson), 2026-12-06, same session, 12 benchmark meshes unless said: clean 5k CD 2.43 -> 4.20, NC 0.947 ->
-# 0.938; clean 20k 0.64 -> 0.95, 0.973 -> 0.965; a third missing 361 -> 497, 0.899 -> 0.858; 6 views 1.29 -> 1.51,
-# 0.972 -> 0.957; but 3 views 45.8 -> 23.8 (NC 0.877 -> 0.870, F1 0.660 -> 0.666; abc_00000008 142 -> 12.6, homer 105
-# -> 13.8, spot 35 -> 10.4) and on the 16 meshes of pointcloud_range_more 65.7 -> 51.6 (NC 0.904 -> 0.889; arm 62 ->
-# 6.9, fertility 74 -> 13): a 3-view scan's kept Poisson surface balloons under what no view saw. Neither the level
-# nor MAX_POISSON_ESCAPE tells those from a third missing, where Poisson wins: levels 0.32-0.47 against 0.38-0.48,
-# escapes 0.028-0.079 against 0.0005-0.061.
+# one-view scans and 7 of the 12 three-view ones (Poisson ran off, and IMLS then lacked the one-sided scans' smoothing
+# pass) against 35-3,400 and 4.5-1,270 with it. The other way, every cloud's target IMLS (no Poisson), 2026-12-06, one
+# session, 12 benchmark meshes unless said: clean 5k CD 2.43 -> 4.20, NC 0.947 -> 0.938; clean 20k 0.64 -> 0.95, 0.973
+# -> 0.965; a third missing 361 -> 497, 0.899 -> 0.858; 6 views 1.29 -> 1.51, 0.972 -> 0.957; but 3 views 45.8 -> 23.8
+# (NC 0.877 -> 0.870, F1 0.660 -> 0.666; abc_00000008 142 -> 12.6, homer 105 -> 13.8, spot 35 -> 10.4) and on the 16
+# meshes of pointcloud_range_more 65.7 -> 51.6 (NC 0.904 -> 0.889; arm 62 -> 6.9, fertility 74 -> 13): a 3-view scan's
+# kept Poisson surface balloons under what no view saw. Neither the level nor MAX_POISSON_ESCAPE tells those from a
+# third missing, where Poisson wins: levels 0.32-0.47 against 0.38-0.48, escapes 0.028-0.079 against 0.0005-0.061.
 CLOSED_LEVEL = 0.25
 # Not settled: which target for clouds that read closed but were seen in part. Each target forced (plan target), 12
 # dev meshes, grid 64, at 17c2436, mean CD / NC auto -- poisson -- imls: 3-view range scans 71.3 / 0.869 -- 553.7 /
@@ -261,22 +260,24 @@ FIELD_REFINEMENT = 2
 MAX_FIELD_RESOLUTION = 160
 # The offset shell (sheet_surface) is tried when the target misses the points both ways: the points lie on average
 # over SHEET_POINTS_GATE median spacings from it, its surface over SHEET_SURFACE_GATE from them (a lid with walls
-# thinner than the spacing: 0.37-0.62, 4.2-6.6; clouds that come out right: under 0.08 for the first, holes and real
-# scans, whose filled holes lie 6-67 spacings off, or under 0.6 for the second, 1% noise). It is kept when its misfit
-# (mean distance points -> surface + surface -> points) is under SHEET_WIN times the target's (the lid: 0.2-0.55).
-# SHEET_SURFACE_GATE 2.0 -> 1.0 (2026-12-05): the lid abc_00000007 from 6 views reads 0.15 and 1.80, CD / NC / F1 62.2
-# / 0.730 / 0.507 -> 2.27 / 0.923 / 0.604; the cup abc_00000009 at 5k points 165.2 -> 10.7. At 10^5 clean points only
-# abc_00000001 of the 38 dev meshes passes the first gate (0.93; shell misfit 2.59, 0.74 needed).
+# under the spacing: 0.37-0.62, 4.2-6.6; right clouds: under 0.08 for the first, holes and real scans, whose filled
+# holes lie 6-67 spacings off, or under 0.6 for the second, 1% noise). It is kept when its misfit (mean distance
+# points -> surface + back) is under SHEET_WIN times the target's (the lid: 0.2-0.55). SHEET_SURFACE_GATE 2.0 -> 1.0
+# (2026-12-05): the lid abc_00000007 from 6 views reads 0.15 and 1.80, CD / NC / F1 62.2 / 0.730 / 0.507 -> 2.27 /
+# 0.923 / 0.604; the cup abc_00000009 at 5k 165.2 -> 10.7. Past the first, 144 clouds (12 meshes x 12 conditions, 4
+# scans, 16 meshes' range scans) read 0.50-0.81 on the second; the lid from 6 views passes the first at 0.150. At 10^5
+# clean points only abc_00000001 of the 38 passes the first (0.93; misfit 2.59, 0.74 needed). A shell only where
+# points span a wall lost the lid at 5k (14.0 -> 445), only for closed clouds at 20k (5.1 -> 114).
 SHEET_POINTS_GATE = 0.15
 SHEET_SURFACE_GATE = 1.0
 # Also tried, whatever those read, for a cloud that reads closed with at least SHEET_WALLS of its points spanning a
-# wall (wall_points): its target, closing holes, fills what the walls enclose (a bowl: a dome). containers.py's five
-# (8 conditions, grid 64, 2026-12-07): bowl clean 20k CD / NC / F1 331.5 / 0.680 / 0.451 -> 1.18 / 0.990 / 0.813, from
-# 6 views 21.0 / 0.898 / 0.691 -> 1.20 / 0.990 / 0.810, vase clean 20k 15.2 / 0.806 / 0.174 -> 1.62 / 0.994 / 0.683,
-# no other change. 38 dev meshes x 10 conditions: with both gates dropped none changes (3 of 380 read over 0.25); x 11
-# more (outliers, flying pixels, LiDAR, 300-1k points): 14 closed clouds read over it, one changes (thingi32_75656 at
-# 600 points 191.6 / 0.872 / 0.333 -> 14.4 / 0.900 / 0.244); 1-2 s more. Open clouds left out (2 over it; LiDAR's
-# lines read as walls): abc_00000001 from 1 position CD 13,636 -> 15,157; abc_00000005 at 300 points 259 -> 18.8.
+# wall (wall_points): its target, closing holes, fills what the walls enclose (a bowl: a dome). containers.py's (8
+# conditions, grid 64, 2026-12-07): bowl clean 20k CD / NC / F1 331.5 / 0.680 / 0.451 -> 1.18 / 0.990 / 0.813, from 6
+# views 21.0 -> 1.20, vase clean 20k 15.2 / 0.806 / 0.174 -> 1.62 / 0.994 / 0.683, no other change. 38 dev meshes x 10
+# conditions: with both gates dropped none changes (3 of 380 read over 0.25); x 11 more (outliers, flying pixels,
+# LiDAR, 300-1k points): 14 closed clouds read over it, one changes (thingi32_75656 at 600 points 191.6 / 0.872 /
+# 0.333 -> 14.4 / 0.900 / 0.244); 1-2 s more. Open clouds left out (2 over it; LiDAR's lines read as walls):
+# abc_00000001 from 1 position CD 13,636 -> 15,157; abc_00000005 at 300 points 259 -> 18.8.
 SHEET_WALLS = 0.25
 # SHEET_WIN 0.65 -> 0.7 (2026-12-06): with the IMLS rims smoothed (surface.BAND_EDGE_BLUR_NODES) the
 # plate of test_a_thin_plate_is_a_surface read 0.678 (0.643), a slab 0.2 thick; the rest did at 0.65.
@@ -315,14 +316,13 @@ SHEET_OFFSET = 1.6
 # nmc_sample0) x clean 5k / 20k, the shell forced, a node's offset everywhere -> 0.2: CD lower on 11 of 12 (mean 8.0
 # -> 5.2), F1 higher on all 12 (0.107 -> 0.346), NC -0.003 to -0.043 (mean -0.018).
 SHEET_HUG = 0.16
-# A cloud's mesh is refused by voro3d.reconstruct, not returned, when it encloses more than this many times the volume
-# of the points' convex hull, or when the median point lies more than this many voxels off it beyond the offset its
-# target keeps by design (the sheet's: a cup lid at 5k points, whose shell sits 1.0 voxel off the points, was refused
-# before it counted). Measured on outputs that are right (3 dev meshes x clean 5k / noise 1% / outliers 2% / third
-# missing, the 4 dev scans): volume 0.28-0.91 of the hull, 2.17 for point_set_3 (its unseen underside closed below the
-# base plane); median distance 0.009-0.23 voxel. The volume test only catches gross balloons: a one-view range scan of
-# abc_00000005 is closed at 8.3 times the hull of the side it saw, a torus with estimate_normals() signs trusted
-# (before the sign check) 7.5.
+# voro3d.reconstruct refuses a cloud's mesh when it encloses more than this many times the volume of the points'
+# convex hull, or when the median point lies more than this many voxels off it beyond the offset its target keeps by
+# design (the sheet's: a cup lid at 5k points, its shell 1.0 voxel off the points, was refused before it counted).
+# Measured on right outputs (3 dev meshes x clean 5k / noise 1% / outliers 2% / third missing, the 4 dev scans):
+# volume 0.28-0.91 of the hull, 2.17 for point_set_3 (its unseen underside closed below its base); median distance
+# 0.009-0.23 voxel. The volume test catches only gross balloons: a one-view scan of abc_00000005 closes at 8.3 times
+# the hull of the side it saw, a torus with estimate_normals() signs trusted (before the sign check) 7.5.
 MAX_HULL_VOLUME = 10.0
 MAX_MEDIAN_DISTANCE = 1.0
 # Both read every k-th point, at most CHECK_POINTS. Against all 10^6 points of 3 dev meshes (Poisson depth 7 meshes of
