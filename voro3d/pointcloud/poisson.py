@@ -11,10 +11,8 @@ triangles) come from the Voronoi extraction, which Poisson's mesh does not give.
 
 Open, one-sided scans keep the IMLS target (:mod:`voro3d.pointcloud.surface`): Poisson would
 wrap them in a balloon that no point supports.
-
-Open3D's solver runs on one thread here (its parallel one gives a different surface on every run)
-and holds the interpreter while it runs; a large cloud is solved in two halves at once, the second
-in a :class:`PoissonHelper` process (:func:`poisson_surface`).
+A large cloud is solved in two halves at once, the second in a :class:`PoissonHelper` process
+(:func:`poisson_surface`: Open3D's solver runs on one thread here and holds the interpreter).
 """
 from __future__ import annotations
 
@@ -154,11 +152,10 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     From ``SPLIT_POINTS`` points on, it is solved in two halves at once, one in ``helper``'s
     process: Open3D's solver runs on one thread here (its parallel sums vary from run to run, and
     seeded runs must repeat exactly) and holds the interpreter while it runs, so a second process
-    is the way to the second core. The points are cut at their median along their box's longest
-    axis; each half takes the points up to ``SPLIT_MARGIN_CELLS`` octree cells past the cut and is
-    solved in a cube as large as the whole cloud's, at the same depth, and keeps its triangles
-    on its own side. Whether a cloud is split depends on its size alone: with or without a
-    helper, the surface is the same.
+    is the way to the second core. The points are cut near their median along their box's longest axis
+    (:func:`_cut`); each half takes the points up to ``SPLIT_MARGIN_CELLS`` octree cells past the cut, is
+    solved in a cube as large as the whole cloud's, at the same depth, and keeps its triangles on its own
+    side. Whether a cloud is split depends on its size alone: with or without a helper, the surface is the same.
 
     Parameters
     ----------
@@ -188,8 +185,9 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     extent = np.ptp(points, axis=0)
     axis = int(np.argmax(extent))
     side = float(extent[axis])
-    cut = float(np.median(points[:, axis]))
-    margin = SPLIT_MARGIN_CELLS * OCTREE_SCALE * side / 2**depth
+    cell = OCTREE_SCALE * side / 2**depth
+    cut = _cut(points[:, axis], cell)
+    margin = SPLIT_MARGIN_CELLS * cell
     sides = (points[:, axis] < cut + margin, points[:, axis] > cut - margin)
     # Each half's cube is the whole cloud's size, so that both solve at the whole cloud's cell size.
     scales = [OCTREE_SCALE * side / float(np.ptp(points[chosen], axis=0).max()) for chosen in sides]
@@ -206,6 +204,20 @@ def poisson_surface(points: np.ndarray, normals: np.ndarray, depth: int, *,
     triangles = np.vstack([kept[0][1], kept[1][1] + kept[0][0].shape[0]])
     return PoissonSurface(vertices, triangles, resolution=2**depth, cut=(axis, cut), halves=tuple(halves),
                           queries=ready)
+
+
+def _cut(along: np.ndarray, cell: float) -> float:
+    """The cut of a split surface: the centre of the octree-``cell`` slab with the fewest points between their
+    40% and 60% quantiles (of ties, the nearest the median). Not the median, which a flat face across the axis can
+    hold, each half then dropping part of it (a chair's seat at 10^5 points: CD / NC 0.826 / 0.971, cut here 0.612
+    / 0.989; 38 dev meshes at 10^5 points, no normals, 2026-12-07: CD 0.6456 -> 0.6455, NC 0.9864, F1 +0.0001)."""
+    low, high = np.quantile(along, (0.4, 0.6))
+    slabs = max(int(np.ceil((high - low) / cell)), 1)
+    counts = np.bincount(np.minimum(((along[(along >= low) & (along <= high)] - low) / cell).astype(np.int64),
+                                    slabs - 1), minlength=slabs)
+    centres = low + (np.arange(slabs) + 0.5) * cell
+    fewest = np.flatnonzero(counts == counts.min())
+    return float(centres[fewest[np.argmin(np.abs(centres[fewest] - np.median(along)))]])
 
 
 def _solve(points, normals, depth: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
