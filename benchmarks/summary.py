@@ -353,18 +353,18 @@ the lid's and the tray's third-missing clouds (never capped); without them 1.9x.
 Seven shapes that are not in the dev data (`benchmarks/parts.py`): CAD parts with flat faces on
 round coordinates (an L bracket with holes, a gear, a hex nut, a pipe tee open at its ends with
 walls 2 on a radius of 12), a chair on thin legs, a smooth blob and a torus knot; all twelve
-conditions, all three methods in one run (2026-12-07), the 10^5-point rows of VoroMesh rerun after
-the fix below. The run found the chair at 10^5 points with a crumpled seat (CD 0.826, NC 0.971):
-its seat held the points' median along the split Poisson target's axis, and each half dropped part
-of it; the cut now lies in the emptiest slab near the median (`poisson._cut`): 0.612 / 0.989.
-VoroMesh has the lower CD than Open3D's pipeline in every condition (10^5 points: 0.689 against
-0.693) and than alpha wrap in all but clean 5k, every output closed and in one piece. What is left
-is the tee: at 5k points its walls are thinner than the spacing, the noise estimate reads them as
-noise (0.93 spacings), and the points are smoothed onto one sheet (CD 34.2, F1 0.05 against alpha
-wrap's 2.66 / 0.65; the shell would give 2.24 / 0.47, but its entry test reads 0.84 spacings, under
-`SHEET_SURFACE_GATE`); and the chair from 1 and 3 views, whose unseen seat underside closes below
-the seat (3 views 37.4 against 15.7). 0.25x Open3D's pipeline summed, which leans on its
-orientation capped at 120 s on the 10^5-point clouds.""",
+conditions, all three methods in one run (2026-12-07), VoroMesh's 10^5-point rows and the tee's
+rerun after the two fixes it led to. The chair at 10^5 points came back with a crumpled seat (CD
+0.826, NC 0.971): the seat held the points' median along the split Poisson target's axis and each
+half dropped part of it; the cut now lies in the emptiest slab near the median (`poisson._cut`):
+0.612 / 0.989. The tee at 5k points, walls as thin as the spacing that read as noise, was smoothed
+onto one sheet inside its walls (CD 34.2, F1 0.05) because the shell's second entry test read 0.84
+spacings; that test, which changed no other decision, is gone (`SHEET_POINTS_GATE`'s comment): CD
+2.24, F1 0.47 (alpha wrap 2.66 / 0.65), and 2.72 against 15.5 at 0.25% noise. VoroMesh now has
+the lowest CD of the three methods in every condition, every output closed and in one piece; left
+are the tee at 0.5-1% noise and a third missing, the chair from 1 and 3 views (its unseen seat
+underside closes below the seat: 3 views 37.4 against alpha wrap's 15.7). 0.25x Open3D's pipeline
+summed, which leans on its orientation capped at 120 s on the 10^5-point clouds.""",
     "pointcloud_noisy_range": """\
 Range scans as a consumer depth sensor gives them: the 12 benchmark meshes from 1 and 3 viewpoints
 with depth noise of 0.3% of the diagonal along the ray (`noisy range scan ...`: six times the other

@@ -1108,6 +1108,28 @@ def test_a_densely_sampled_bowl_stays_hollow():
     assert not InsideOutside(out).occupancy(np.array([[0.0, 0.0, -0.5]])).any()  # in the bowl's hollow
 
 
+
+def test_a_sparse_pipe_whose_walls_read_as_noise_gets_the_shell():
+    """A pipe tee open at its ends, walls 2 thick at 5k points 2 apart: the two sides of a wall read as
+    noise (0.9 spacings), the points are smoothed onto one sheet between them and the Poisson target
+    runs inside the walls (CD 34, F1 0.05) while its surface lies within a spacing of the points, the
+    second entry test of the shell that this cloud failed (0.84)."""
+    from manifold3d import Manifold
+
+    cylinder = lambda height, radius: Manifold.cylinder(height, radius, radius, 64)  # noqa: E731
+    tee = (cylinder(100.0, 12.0).translate([0.0, 0.0, -50.0]) + cylinder(60.0, 12.0).rotate([90.0, 0.0, 0.0])) - (
+        cylinder(104.0, 10.0).translate([0.0, 0.0, -52.0]) + cylinder(64.0, 10.0).rotate([90.0, 0.0, 0.0])
+        .translate([0.0, 2.0, 0.0]))
+    mesh = tee.to_mesh()
+    vertices, triangles = np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts)
+    points, _ = sample_surface((vertices, triangles), 5000, seed=0)
+    shape, target, info = reconstruct_points(points, grid=64, steps=100)
+    out = cloud_mesh(shape, target)
+    assert info.target == "sheet"
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    assert evaluate(out, (vertices, triangles), n_samples=20000)["chamfer_x1e5"] < 10
+
+
 # -- chunked and subsampled statistics equal the one-query ones ------------------------------------
 
 def _one_query_stats(points, normals):

@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..geometry import grid_voxel
-from .tuning import HEAVY_NOISE, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SUPPORT, SHEET_SURFACE_GATE, SHEET_WALLS, SHEET_WIN
+from .tuning import HEAVY_NOISE, SHEET_OFFSET, SHEET_POINTS_GATE, SHEET_SUPPORT, SHEET_WALLS, SHEET_WIN
 
 __all__ = ["CloudPlan", "as_plan", "NORMALS", "SWITCHES", "TARGETS"]
 
@@ -132,8 +132,8 @@ def settle_hull(plan: CloudPlan, *, closed: bool, kind: str = "imls") -> str:
 def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance=None, walls: float = 0.0):
     """The offset shell of the points when it fits them much better than ``target``, else None.
 
-    Tried when ``target`` misses the points both ways (``SHEET_POINTS_GATE``,
-    ``SHEET_SURFACE_GATE``) or when a share ``walls`` of at least ``SHEET_WALLS`` of the points
+    Tried when the points lie off ``target`` (``SHEET_POINTS_GATE``: the noise of a wall's two
+    sides read as one surface) or when a share ``walls`` of at least ``SHEET_WALLS`` of the points
     span both sides of a thin wall (passed for clouds that read closed, whose target can run
     through both sides and still fill what the walls enclose: a bowl comes back as a dome). Kept
     when the points hold it on both faces (its surface lies within ``SHEET_SUPPORT`` spacings of
@@ -146,17 +146,14 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
 
     sample = points[::check_stride(len(points))]
     to_target = float(np.mean(target.distance(sample) if distance is None else distance))
-    walled = walls >= SHEET_WALLS
-    if to_target <= SHEET_POINTS_GATE * spacing and not walled:
-        return None
-    strays = _surface_to_points(target, points)
-    if strays <= SHEET_SURFACE_GATE * spacing and not walled:
+    if to_target <= SHEET_POINTS_GATE * spacing and walls < SHEET_WALLS:
         return None
     sheet = sheet_target(points, spacing, resolution)
     held = _surface_to_points(sheet, points)
     if held > SHEET_SUPPORT * spacing:
         return None
-    return sheet if float(np.mean(sheet.distance(sample))) + held < SHEET_WIN * (to_target + strays) else None
+    misfit = float(np.mean(sheet.distance(sample))) + held
+    return sheet if misfit < SHEET_WIN * (to_target + _surface_to_points(target, points)) else None
 
 
 def sheet_target(points, spacing: float, resolution: int):

@@ -4,7 +4,7 @@ Gates and widths of :func:`~voro3d.pointcloud.reconstruct.reconstruct_points`, i
 terms (diagonal 2) unless said otherwise. A number stays here only with a measurement beside it.
 """
 
-__all__ = ["CLOUD_STEPS", "CLOUD_BOUNDARY_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "SHELL_ROUNDING_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_SURFACE_GATE", "SHEET_WALLS", "SHEET_WIN", "SHEET_SUPPORT", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "LINE_RATIO", "LINE_SAMPLE", "THIN_ROUNDS", "SPARSE_SPACINGS", "STRAY_RATIO", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
+__all__ = ["CLOUD_STEPS", "CLOUD_BOUNDARY_STEPS", "CLOUD_SAMPLES_PER_FACE", "CLOUD_REFRESH_VOXELS", "WIDTH_PER_SPACING", "TRUSTED_WIDTH_PER_SPACING", "WIDTH_PER_NOISE", "MAX_TRUSTED_OUTLIERS", "MIN_NORMAL_AGREEMENT", "MAX_SIGN_DISAGREEMENT", "MAX_TIE_WEIGHT", "UNDECIDED_SIGMAS", "NOISY", "HEAVY_NOISE", "FILTER_WIDTH_PER_NOISE", "AUTO_SPACINGS_PER_VOXEL", "AUTO_GRID_RANGE", "COARSEST_GRID", "BAND_TOLERANCE", "MAX_TARGET_GRID", "MAX_REFINE", "DETAIL_SPACINGS", "TARGET_CELL_SPACINGS", "MIN_SPACINGS_PER_VOXEL", "DENSE_SPACINGS", "HOLE_VOXELS", "STRAY_CELL_SHARE", "CLOSED_LEVEL", "HOLE_LEVEL", "SHELL_DEPTH", "THINNEST_SHELL_NODES", "SHELL_ROUNDING_NODES", "MAX_BRIDGE_GAP", "MAX_POISSON_ESCAPE", "HULL_MARGIN_NODES", "MIN_COVERAGE", "FIELD_REFINEMENT", "MAX_FIELD_RESOLUTION", "SHEET_POINTS_GATE", "SHEET_WALLS", "SHEET_WIN", "SHEET_SUPPORT", "SHEET_OFFSET", "SHEET_HUG", "MAX_HULL_VOLUME", "MAX_MEDIAN_DISTANCE", "CHECK_POINTS", "STATISTICS_SAMPLE", "SIGN_SAMPLE", "LINE_RATIO", "LINE_SAMPLE", "THIN_ROUNDS", "SPARSE_SPACINGS", "STRAY_RATIO", "SUSPECT_FLATNESS", "SUSPECT_OFFSET",
            "SIGHT_ANGLE", "SIGHT_LINES", "SIGHT_GAP", "SIGHT_POINTS", "MIN_REVEALING", "SEPARATE_POINTS", "TILE_POINTS", "ANALYSIS_POINTS", "TILE_SAMPLES", "TILE_MARGIN",
            "SEAM_WIDTH", "SEAM_STEPS", "SPLIT_POINTS", "SPLIT_MARGIN_CELLS", "TWO_SHEET_POINTS", "TWO_SHEET_CLEARANCE", "WALL_VOTE"]
 
@@ -55,12 +55,11 @@ UNDECIDED_SIGMAS = 3.0
 # 12 / 9 / 3 of 12 at 300 / 600 / 1k points, now 4 / 1 / 1; CD 172.9 -> 93.0, 69.2 -> 53.9, 30.5 -> 25.8, F1 +0.06-0.13),
 # and thingi32_252119's clean 5k (0.169; CD 15.9 -> 17.5, NC 0.758 -> 0.791, F1 0.396 -> 0.611).
 NOISY = 0.13
-# Noise over this many cells of the Poisson octree (2 / 2^depth in the fit frame; four dev shapes,
-# 20k points: 0.61-0.66 at 0.25% of the diagonal, 1.06-1.09 at 0.5%, 1.46-1.59 at 1%) leaves bumps
-# the target resolves: it is bilateral-filtered (pointcloud.denoise) over FILTER_WIDTH_PER_NOISE
-# noise deviations. On the four at 0.5% and 1% noise: CD 3-15% lower but armadillo at 0.5% (+0.7%),
-# triangles over 30 degrees off the true normal 10.0% -> 8.9% (0.5%) and 23.1% -> 18.3% (1%), NC
-# +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 4-10% on three, hence the gate.
+# Noise over this many cells of the Poisson octree (2 / 2^depth in the fit frame; four dev shapes, 20k points: 0.61-0.66
+# at 0.25% of the diagonal, 1.06-1.09 at 0.5%, 1.46-1.59 at 1%) leaves bumps the target resolves: it is
+# bilateral-filtered (pointcloud.denoise) over FILTER_WIDTH_PER_NOISE noise deviations. On the four at 0.5% and 1%
+# noise: CD 3-15% lower but armadillo at 0.5% (+0.7%), triangles over 30 degrees off the true normal 10.0% -> 8.9%
+# (0.5%) and 23.1% -> 18.3% (1%), NC +0.002-0.03, fandisk's flat faces flat; at 0.25% it cost CD 4-10% on three.
 HEAVY_NOISE = 0.85
 FILTER_WIDTH_PER_NOISE = 2.0
 # grid="auto": the finest voxels about this many median spacings wide, within these bounds. The top at 10^6 true-normal
@@ -258,18 +257,19 @@ MIN_COVERAGE = 0.9
 # (the other 5, a third missing) within 2.5% CD and 0.01 F1 of each other, 0.97-1.0x the time.
 FIELD_REFINEMENT = 2
 MAX_FIELD_RESOLUTION = 160
-# The offset shell (sheet_surface) is tried when the target misses the points both ways: the points lie on average
-# over SHEET_POINTS_GATE median spacings from it, its surface over SHEET_SURFACE_GATE from them (a lid with walls
-# under the spacing: 0.37-0.62, 4.2-6.6; right clouds: under 0.08 for the first, holes and real scans, whose filled
-# holes lie 6-67 spacings off, or under 0.6 for the second, 1% noise). It is kept when its misfit (mean distance
-# points -> surface + back) is under SHEET_WIN times the target's (the lid: 0.2-0.55). SHEET_SURFACE_GATE 2.0 -> 1.0
-# (2026-12-05): the lid abc_00000007 from 6 views reads 0.15 and 1.80, CD / NC / F1 62.2 / 0.730 / 0.507 -> 2.27 /
-# 0.923 / 0.604; the cup abc_00000009 at 5k 165.2 -> 10.7. Past the first, 144 clouds (12 meshes x 12 conditions, 4
-# scans, 16 meshes' range scans) read 0.50-0.81 on the second; the lid from 6 views passes the first at 0.150. At 10^5
-# clean points only abc_00000001 of the 38 passes the first (0.93; misfit 2.59, 0.74 needed). A shell only where
-# points span a wall lost the lid at 5k (14.0 -> 445), only for closed clouds at 20k (5.1 -> 114).
+# The offset shell (sheet_surface) is tried when the points lie over SHEET_POINTS_GATE median spacings from the target
+# (a lid with walls under the spacing: 0.37-0.62, from 6 views 0.150; right clouds, holes and real scans too: under
+# 0.08) and kept when its misfit (mean distance points -> surface -> points) is under SHEET_WIN times the target's (the
+# lid: 0.2-0.55). A second entry gate, the target's surface over a spacing from the points (SHEET_SURFACE_GATE), only
+# spared time once SHEET_SUPPORT and SHEET_WIN decided. Dropped (2026-12-07): no decision changes on 12 benchmark meshes
+# x 9 conditions (clean 5k, 3 noises, outliers, a third missing, 1 / 3 / 6 views), nor on 24 noisy and 5k clouds of 6
+# parts (benchmarks/parts.py: misfit ratios 1.08-1.80), nor (both gates dropped) on 380 dev clouds before; 144 clouds
+# had read 0.50-0.81 on it. parts.py's pipe tee at 5k points, walls thinner than the spacing read as noise, read 0.84 /
+# 0.92 (clean / 0.25% noise) and now takes the shell: clean CD / NC / F1 34.2 / 0.931 / 0.051 -> 2.24 / 0.982 / 0.473
+# (alpha wrap 2.66 / 0.853 / 0.650). Its cost: the shell built on noisy clouds, +0.6-0.9 s a cloud (22.1 -> 26.3 s on
+# 6). At 10^5 clean points only abc_00000001 of the 38 passes the gate (0.93; misfit 2.59, 0.74 needed). A shell only
+# where points span a wall lost the lid at 5k (14.0 -> 445); only for closed clouds, at 20k (5.1 -> 114).
 SHEET_POINTS_GATE = 0.15
-SHEET_SURFACE_GATE = 1.0
 # Also tried, whatever those read, for a cloud that reads closed with at least SHEET_WALLS of its points spanning a
 # wall (wall_points): its target, closing holes, fills what the walls enclose (a bowl: a dome). containers.py's (8
 # conditions, grid 64, 2026-12-07): bowl clean 20k CD / NC / F1 331.5 / 0.680 / 0.451 -> 1.18 / 0.990 / 0.813, from 6
