@@ -156,3 +156,21 @@ def test_objects_far_apart_are_found_on_a_subset(monkeypatch):
     out = reconstruct(cloud, grid=32, steps=100)
     assert check_watertight(out).watertight
     assert len(np.unique(np.asarray(out.cluster_connected_triangles()[0]))) == 2
+
+
+def test_a_script_without_a_main_guard_gets_a_clear_error(tmp_path):
+    # The spawned tile workers import the script again, which starts its own tiled reconstruct mid-bootstrap.
+    import subprocess
+    import sys
+
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "from voro3d.pointcloud import reconstruct_points, tiles\n"
+        "from voro3d.sampling import sample_surface\n"
+        "from voro3d.shapes import example_mesh\n"
+        "tiles.TILE_POINTS, tiles.ANALYSIS_POINTS, tiles.TILE_SAMPLES = 3000, 2000, 3000\n"
+        "points, normals = sample_surface(example_mesh('sphere'), 4000, seed=0)\n"
+        "reconstruct_points(points, normals, grid=16, steps=10, workers=2)\n")
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert run.returncode != 0
+    assert "if __name__ == \"__main__\":" in run.stderr.splitlines()[-1]

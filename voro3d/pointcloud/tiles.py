@@ -260,11 +260,16 @@ def _run_local(tasks, grid, options, workers, progress) -> list:
         import multiprocessing
 
         # spawn, not fork: a fork would copy this process's threads and locks (tqdm, OpenMP) mid-state.
-        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_fit_tile, *task, grid, options) for task in tasks]
-            for _ in concurrent.futures.as_completed(futures):
-                bar.update()
-            return [future.result() for future in futures]
+        try:
+            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+                futures = [pool.submit(_fit_tile, *task, grid, options) for task in tasks]
+                for _ in concurrent.futures.as_completed(futures):
+                    bar.update()
+                return [future.result() for future in futures]
+        except concurrent.futures.process.BrokenProcessPool as error:
+            raise RuntimeError("a tile's worker process died: out of memory, or the calling script runs its work at "
+                               "import (a spawned worker imports it again: keep it under "
+                               "`if __name__ == \"__main__\":`), or pass workers=1") from error
 
 
 def _run_ray(tasks, grid, options, workers, progress) -> list:
