@@ -130,7 +130,10 @@ moved onto the IMLS zero set within the band only), the same Poisson figures; po
 Rerun 2026-12-06 night with the fit's steps on the faces between inside and outside cells
 (`CLOUD_BOUNDARY_STEPS`): poste_france's kept points 9.99e-6 -> 2.28e-6, its slab without the bumps
 on both faces (the close-up), hippo2 5.45e-4, point_set_3 1.73e-4, radar 8.70e-5 (9.05e-5), normal
-agreement 0.973 / 0.993.""",
+agreement 0.973 / 0.993. The noise rows rerun 2026-12-07, both methods in one run, with the shell tried
+on every cloud whose points lie off its target (`SHEET_POINTS_GATE`; no target changed): VoroMesh 4.5
+/ 5.6 / 5.9 s against 2.1-2.2 s, 1% noise CD 6.75 -> 3.62 and NC 0.885 -> 0.910 from the code's
+changes since those rows last ran (elephant 11.1 -> 3.2, thingi32_75655 13.8 -> 4.1).""",
     "adaptive": """\
 `benchmarks/bench_adaptive.py`: the adaptive band `grid="auto"` fits on a dense cloud (octree from
 128³ up to 32³ voxels, split where the target bends) against uniform bands of 48-128³, on 10⁶
