@@ -87,13 +87,11 @@ def main() -> None:
     parser.add_argument("folder", type=Path, help="where the PLY meshes are written (made if missing)")
     parser.add_argument("--picture", type=Path, help="also draw PICTURED into this PNG (needs the CGAL headers)")
     args = parser.parse_args()
-    import open3d as o3d
+    from voro3d.io import save_mesh
 
     args.folder.mkdir(parents=True, exist_ok=True)
     for name, (vertices, triangles) in containers().items():
-        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
-        o3d.io.write_triangle_mesh(str(args.folder / f"{name}.ply"), mesh)
-        print(f"{args.folder / name}.ply: {len(triangles):,} triangles")
+        print(f"{save_mesh((vertices, triangles), args.folder / f'{name}.ply')}: {len(triangles):,} triangles")
     if args.picture:
         walls_picture(args.folder, args.picture)
 

@@ -89,13 +89,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", type=Path, help="where the PLY meshes are written (made if missing)")
     args = parser.parse_args()
-    import open3d as o3d
+    from voro3d.io import save_mesh
 
     args.folder.mkdir(parents=True, exist_ok=True)
     for name, (vertices, triangles) in parts().items():
-        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
-        o3d.io.write_triangle_mesh(str(args.folder / f"{name}.ply"), mesh)
-        print(f"{args.folder / name}.ply: {len(triangles):,} triangles")
+        print(f"{save_mesh((vertices, triangles), args.folder / f'{name}.ply')}: {len(triangles):,} triangles")
 
 
 if __name__ == "__main__":

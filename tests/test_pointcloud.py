@@ -1095,10 +1095,10 @@ def test_a_densely_sampled_bowl_stays_hollow():
     from manifold3d import Manifold
 
     from voro3d.queries import InsideOutside
+    from voro3d.shapes import _from_manifold
 
     bowl = Manifold.sphere(1.0, 96) - Manifold.sphere(0.96, 96) - Manifold.cube([4.0, 4.0, 2.0]).translate([-2.0, -2.0, 0.0])
-    mesh = bowl.to_mesh()
-    vertices, triangles = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+    vertices, triangles = _from_manifold(bowl)
     points, _ = sample_surface((vertices, triangles), 20000, seed=0)
     shape, target, info = reconstruct_points(points, grid=64, steps=100)
     out = shape.to_open3d()
@@ -1108,7 +1108,6 @@ def test_a_densely_sampled_bowl_stays_hollow():
     assert not InsideOutside(out).occupancy(np.array([[0.0, 0.0, -0.5]])).any()  # in the bowl's hollow
 
 
-
 def test_a_sparse_pipe_whose_walls_read_as_noise_gets_the_shell():
     """A pipe tee open at its ends, walls 2 thick at 5k points 2 apart: the two sides of a wall read as
     noise (0.9 spacings), the points are smoothed onto one sheet between them and the Poisson target
@@ -1116,12 +1115,13 @@ def test_a_sparse_pipe_whose_walls_read_as_noise_gets_the_shell():
     second entry test of the shell that this cloud failed (0.84)."""
     from manifold3d import Manifold
 
+    from voro3d.shapes import _from_manifold
+
     cylinder = lambda height, radius: Manifold.cylinder(height, radius, radius, 64)  # noqa: E731
     tee = (cylinder(100.0, 12.0).translate([0.0, 0.0, -50.0]) + cylinder(60.0, 12.0).rotate([90.0, 0.0, 0.0])) - (
         cylinder(104.0, 10.0).translate([0.0, 0.0, -52.0]) + cylinder(64.0, 10.0).rotate([90.0, 0.0, 0.0])
         .translate([0.0, 2.0, 0.0]))
-    mesh = tee.to_mesh()
-    vertices, triangles = np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts)
+    vertices, triangles = _from_manifold(tee)
     points, _ = sample_surface((vertices, triangles), 5000, seed=0)
     shape, target, info = reconstruct_points(points, grid=64, steps=100)
     out = cloud_mesh(shape, target)
