@@ -1,7 +1,9 @@
-"""Thin-walled containers, none of them in the dev data: a bowl, a mug, a tray, a lid and a vase.
+"""Thin-walled containers and sheets, none in the dev data: a bowl, a mug, a tray, a lid, a vase, a card, an angle.
 
 Walls 1.3-2.5% of the diagonal thick, open where a container is open: the shapes where a cloud
-sampled on both sides of a wall is easy to close into a solid (a bowl into a dome). Built with
+sampled on both sides of a wall is easy to close into a solid (a bowl into a dome); and two sheets
+thinner still, a flat card 0.9% of its diagonal thick and a bent sheet-metal angle 1.7%, whose two
+sides a sparse cloud samples closer than its spacing. Built with
 manifold3d, in millimetres, and written as PLY meshes into a folder for ``bench_pointcloud.py --folder``::
 
     python benchmarks/containers.py /tmp/containers
@@ -25,7 +27,7 @@ PICTURED = (("bowl", "clean 20k"), ("bowl", "range scan 6 views"), ("vase", "cle
 
 
 def containers() -> dict:
-    """``{name: (vertices (n, 3) float64, triangles (m, 3) int64)}`` of the five containers."""
+    """``{name: (vertices (n, 3) float64, triangles (m, 3) int64)}`` of the five containers and two sheets."""
     from manifold3d import CrossSection, Manifold
 
     from voro3d.shapes import _from_manifold
@@ -46,7 +48,10 @@ def containers() -> dict:
     outer = [[float(r), float(z)] for r, z in zip(radii, heights)]
     inner = [[float(r - 2.5), float(max(z, 4.0))] for r, z in zip(radii[::-1], heights[::-1])]
     vase = CrossSection([[[0.0, 0.0]] + outer + inner[:-1] + [[0.0, 4.0]]]).revolve(SEGMENTS)
-    solids = dict(bowl=bowl, mug=mug, tray=tray, lid=lid, vase=vase)
+    card = Manifold.cube([100.0, 60.0, 1.0])
+    # Two flanges 60 and 40 wide, 1.5 thick, bent at a right angle along 50.
+    angle = Manifold.cube([60.0, 50.0, 1.5]) + Manifold.cube([1.5, 50.0, 40.0])
+    solids = dict(bowl=bowl, mug=mug, tray=tray, lid=lid, vase=vase, card=card, angle=angle)
     return {name: _from_manifold(solid) for name, solid in solids.items()}
 
 

@@ -11,7 +11,8 @@ from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio
                                reconstruct_points, repair_normals, transfer_colors)
 from voro3d.pointcloud.fields import smooth_band_edge, smooth_maximum
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
-from voro3d.pointcloud.surface import sheet_surface, target_surface, winding_level
+from voro3d.pointcloud.shell import sheet_surface
+from voro3d.pointcloud.surface import target_surface, winding_level
 from voro3d.pointcloud.tuning import CLOSED_LEVEL, MAX_POISSON_ESCAPE, NOISY, SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
 from voro3d.queries import point_areas
@@ -914,6 +915,34 @@ def test_sheet_surface_hugs_a_wall_sampled_on_both_sides_and_keeps_a_one_sided_s
     assert np.median(hugged.distance(wall)) < 0.02 and hugged.inside(wall).mean() > 0.95
     assert hugged.inside(np.array([[0.0, 0.0, 0.0]])).all()
     assert 0.022 < np.median(kept.distance(one_sided)) < 0.045 and kept.inside(one_sided).mean() > 0.95
+
+
+def test_a_hugging_shell_lies_on_a_thin_plate_no_thinner_than_a_node_and_keeps_a_one_sided_sheet_thick():
+    """The grid's shell of a plate 0.03 thick lies about 0.015 off its points (96 nodes); hugging
+    lays each face a twentieth of a spacing off its side, and the inside test follows. A plate
+    thinner than a node (0.016 at 48 nodes) is kept a node thick. Under a sheet seen from one
+    side no far side lies: its shell stays as the grid made it."""
+    from voro3d.pointcloud.shell import HUG_SPACINGS
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-0.5, 0.5, (3000, 2))
+    middle = lambda surface: np.abs(surface.vertices[np.abs(surface.vertices[:, :2]).max(axis=1) < 0.4, 2])  # noqa: E731
+    plate = np.column_stack([xy, np.where(np.arange(3000) % 2, 0.015, -0.015)])  # 1.1 spacings thick
+    spacing = cloud_stats(plate).median_spacing
+    grid = sheet_surface(plate, 0.05, 96)
+    hugged = grid.hugging(plate, spacing)
+    assert np.median(middle(grid)) > 0.025
+    assert 0.015 < np.median(middle(hugged)) < 0.015 + 2 * HUG_SPACINGS * spacing
+    beside = np.array([[0.0, 0.0, 0.02], [0.2, 0.1, -0.02]])
+    assert grid.inside(beside).all() and not hugged.inside(beside).any()
+    assert hugged.inside(np.zeros((1, 3))).all()
+    thin = np.column_stack([xy, np.where(np.arange(3000) % 2, 0.008, -0.008)])
+    half_node = 1.0 / 47
+    assert abs(np.median(middle(sheet_surface(thin, 0.05, 48).hugging(thin, spacing))) - half_node) < 0.002
+    one_sided = np.column_stack([xy, np.zeros(3000)])
+    grid = sheet_surface(one_sided, 0.05, 48)
+    moved = grid.hugging(one_sided, cloud_stats(one_sided).median_spacing).vertices != grid.vertices
+    assert np.mean(moved.any(axis=1)[np.abs(grid.vertices[:, :2]).max(axis=1) < 0.4]) < 0.01  # (its rim is drawn in)
 
 
 def test_depth_holds_an_open_scan_in_a_shell_and_keeps_a_closed_inside(sphere_cloud):

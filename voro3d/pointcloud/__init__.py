@@ -95,9 +95,10 @@ the points define (``voro3d/pointcloud/``):
      the two sides mix and both targets above come out as a lumpy solid whose surface runs far
      from the points. When the target misses the points both ways (the points lie on average
      more than 0.15 spacings from it, and it more than a spacing from them; filled holes and
-     noise on a closed cloud each do only one of these), a shell around the points is tried (``sheet_surface``: the
+     noise on a closed cloud each do only one of these), a shell around the points is tried (``shell.py``: the
      blurred distance to the points at 1.6 spacings, cavities filled, then closed back to a quarter
-     spacing from the points, a node thick where they are one-sided; no normals needed) and kept
+     spacing from the points, a node thick where they are one-sided; no normals needed; its mesh
+     then laid a twentieth of a spacing off each side of a wall, ``shell.hug_points``) and kept
      when its misfit (mean distance points → surface + surface → points) is under 0.7 of the
      target's (``SHEET_WIN``) and the points hold it on both faces (``SHEET_SUPPORT``: its surface
      lies within 0.78 spacings of them on average; around a wall's two sides 0.55-0.76, around one

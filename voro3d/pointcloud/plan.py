@@ -139,8 +139,9 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     when the points hold it on both faces (its surface lies within ``SHEET_SUPPORT`` spacings of
     them on average: a wall sampled on both sides, not one side of a solid or an open sheet,
     whose shell has an empty face) and its misfit (mean distance points -> surface plus surface
-    -> points) is under ``SHEET_WIN`` times the target's. ``distance``: the distance of every
-    :func:`~voro3d.pointcloud.preprocess.check_stride`-th point to ``target``, when already measured.
+    -> points) is under ``SHEET_WIN`` times the target's. The shell is read, and kept, as laid onto
+    the points (:meth:`~voro3d.pointcloud.shell.SheetSurface.hugging`). ``distance``: the distance of
+    every :func:`~voro3d.pointcloud.preprocess.check_stride`-th point to ``target``, when already measured.
     """
     from .preprocess import check_stride
 
@@ -148,7 +149,7 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     to_target = float(np.mean(target.distance(sample) if distance is None else distance))
     if to_target <= SHEET_POINTS_GATE * spacing and walls < SHEET_WALLS:
         return None
-    sheet = sheet_target(points, spacing, resolution)
+    sheet = sheet_target(points, spacing, resolution).hugging(points, spacing)
     held = _surface_to_points(sheet, points)
     if held > SHEET_SUPPORT * spacing:
         return None
@@ -157,8 +158,8 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
 
 
 def sheet_target(points, spacing: float, resolution: int):
-    """The shell ``SHEET_OFFSET`` spacings (at least a field voxel) around the points."""
-    from .surface import sheet_surface
+    """The shell ``SHEET_OFFSET`` spacings (at least a field voxel) around the points, as the grid gives it."""
+    from .shell import sheet_surface
 
     return sheet_surface(points, max(grid_voxel(resolution), SHEET_OFFSET * spacing), resolution)
 

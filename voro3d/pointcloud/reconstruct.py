@@ -7,7 +7,7 @@ gets) of a target surface that the points define: screened Poisson for points th
 (:mod:`voro3d.pointcloud.sightlines`); a robust IMLS field with the winding number of the points behind
 it for open, one-sided scans, held within a shell's depth of the points where they do not enclose it
 (:mod:`voro3d.pointcloud.surface`); or, for walls sampled on both sides closer than the point spacing, a
-shell around the points (:func:`~voro3d.pointcloud.surface.sheet_surface`); the same target labels the
+shell around the points (:func:`~voro3d.pointcloud.shell.sheet_surface`); the same target labels the
 cells. :func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
 (:func:`voro3d.snapping.snap_to_surface`), its triangles split first where the target is finer than the grid.
 """

@@ -19,13 +19,12 @@ from functools import cached_property
 
 import numpy as np
 
-from .fields import (MIN_SUPPORT, GridSurface, bridge, closing, depth_limit, limit_reach, mesh_field,
+from .fields import (MIN_SUPPORT, GridSurface, bridge, depth_limit, limit_reach, mesh_field,
                      smooth_band_edge, smooth_maximum, within)
 from .nodes import node_distance
-from .tuning import MAX_BRIDGE_GAP, SHEET_HUG, SHELL_ROUNDING_NODES
+from .tuning import MAX_BRIDGE_GAP, SHELL_ROUNDING_NODES
 
-__all__ = ["SheetSurface", "TargetSurface", "imls", "sheet_surface", "shell_depths", "target_surface",
-           "winding_level"]
+__all__ = ["TargetSurface", "imls", "shell_depths", "target_surface", "winding_level"]
 
 # Neighbours that enter one IMLS evaluation. Gaussian weights beyond ~3 kernel widths vanish;
 # 32 neighbours cover that for the widths used (0.75-1.5 spacings, more on noisy clouds).
@@ -186,71 +185,6 @@ class TargetSurface(GridSurface):
     def _held_at(self, index: np.ndarray) -> np.ndarray:
         """(q, 3) grid indices -> (q,) bool: whether the nearest node is ``held``."""
         return self.held[tuple(np.clip(np.rint(index), 0, self.resolution - 1).astype(np.int64).T)]
-
-
-@dataclass
-class SheetSurface(GridSurface):
-    """The closed shell around the points (:func:`sheet_surface`), as a target; ``offset``: the most it keeps from them.
-
-    The same interface as :class:`TargetSurface`: ``field`` (negative inside) on a grid over
-    ``[-1, 1]^3``, its Marching Cubes mesh ``vertices, triangles`` (the samples lie on it as they
-    are), and inside/outside from the field alone.
-    """
-
-    offset: float
-    dense: bool = False
-
-    def inside(self, queries: np.ndarray) -> np.ndarray:
-        """(q, 3) fit-frame points -> (q,) bool: the trilinear field is negative (outside the grid is outside)."""
-        return self._field_at(queries)[0] < 0
-
-    def project(self, queries: np.ndarray) -> np.ndarray:
-        """The mesh is the target itself: points on it stay where they are."""
-        return np.array(queries, np.float64)
-
-
-def sheet_surface(points, offset: float, resolution: int) -> SheetSurface:
-    """A closed solid around the points, a fraction of a spacing off them: thin walls become thin solids.
-
-    Needs no normals. Where a wall is sampled on both sides closer than the points' spacing,
-    no oriented field can tell its sides apart (the normals of the two sides mix and the IMLS
-    and Poisson fields turn it into a lumpy solid). The union of balls of radius ``offset``
-    around the points joins the two sides; its distance is blurred by a Gaussian of one node
-    first, so that the balls do not show. Cavities (regions outside the shell that do not reach
-    the edge of the grid: the inside of a thick, closed part) are filled. Then the solid is
-    eroded back to ``SHEET_HUG`` of the offset from the points (:func:`~voro3d.pointcloud.fields.closing`),
-    keeping a half thickness of one node where the points are one-sided, and pieces that
-    enclose few points are dropped as for :func:`target_surface`.
-
-    Parameters
-    ----------
-    points : (n, 3) float64
-        Fit frame.
-    offset : float
-        Fit-frame units: more than half the thickness of the thinnest wall, and more than the
-        gaps between points plus a grid step, or the shell has holes (then cavities stay open).
-    resolution : int
-        Grid nodes per axis.
-
-    Returns
-    -------
-    SheetSurface
-        Its ``offset`` is the most it keeps from the points: the half thickness of one-sided parts.
-    """
-    from scipy.spatial import cKDTree
-
-    from ..geometry import grid_voxel
-
-    # Read through the depth limit's blur alone: exact within a node (FAR_CELL_NODES beyond).
-    step = grid_voxel(resolution)
-    distance, _ = node_distance(cKDTree(points), resolution, step, far=limit_reach(resolution, offset))
-    limit = depth_limit(distance, resolution, offset)
-    field = within(limit.copy(), limit, step)
-    half_thickness = min(step, offset)
-    field = closing(field, offset, hug=min(SHEET_HUG * offset, half_thickness), half_thickness=half_thickness)
-    field = bridge(field, points, MAX_BRIDGE_GAP)
-    supported, vertices, triangles = mesh_field(field, points, MIN_SUPPORT)
-    return SheetSurface(supported, vertices, triangles, float(half_thickness))
 
 
 def imls(points, normals, widths, queries, *, tree=None, k: int = IMLS_NEIGHBOURS, block: int = 65536):
