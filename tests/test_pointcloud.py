@@ -1159,6 +1159,24 @@ def test_a_sparse_pipe_whose_walls_read_as_noise_gets_the_shell():
     assert evaluate(out, (vertices, triangles), n_samples=20000)["chamfer_x1e5"] < 10
 
 
+def test_a_card_thinner_than_the_spacing_comes_back_as_thin_as_it_is():
+    """A card 100 x 60 x 1 at 5k points, its sides 0.7 spacings apart: the grid's shell lay a node off both
+    faces and the rule refused it, and the IMLS target smoothed the sides into a slab 3.8 thick (CD 29, F1
+    0.03). The shell laid onto the points keeps the card's thickness."""
+    from manifold3d import Manifold
+
+    from voro3d.shapes import _from_manifold
+
+    vertices, triangles = _from_manifold(Manifold.cube([100.0, 60.0, 1.0]))
+    points, _ = sample_surface((vertices, triangles), 5000, seed=0)
+    shape, target, info = reconstruct_points(points, grid=48, steps=100)
+    out = cloud_mesh(shape, target)
+    assert info.target == "sheet"
+    assert check_watertight(out).watertight and _pieces(out) == 1
+    assert np.ptp(np.asarray(out.vertices)[:, 2]) < 2.0
+    assert evaluate(out, (vertices, triangles), n_samples=20000)["chamfer_x1e5"] < 6
+
+
 # -- chunked and subsampled statistics equal the one-query ones ------------------------------------
 
 def _one_query_stats(points, normals):
