@@ -779,6 +779,8 @@ def main():
                         "ablation beside it in voro3d/pointcloud/tuning.py")
     parser.add_argument("--sheet-support", type=float, help="SHEET_SUPPORT for this run (inf: no such rule), the "
                         "ablation beside it in voro3d/pointcloud/tuning.py")
+    parser.add_argument("--hug-spacings", help="HUG_SPACINGS for this run (none: the offset shell as its grid gives "
+                        "it, not laid onto the points), the ablation beside it in voro3d/pointcloud/shell.py")
     parser.add_argument("--line-ratio", type=float, help="LINE_RATIO for this run (0: no cloud is thinned along its "
                         "scan lines), the ablation beside it")
     parser.add_argument("--sparse-spacings", type=float, help="SPARSE_SPACINGS (outlier test) for this run, the "
@@ -800,6 +802,7 @@ def main():
     import voro3d.pointcloud.plan as plan_module
     import voro3d.pointcloud.reconstruct as reconstruct_module
     import voro3d.pointcloud.resolution as resolution_module
+    import voro3d.pointcloud.shell as shell_module
     import voro3d.pointcloud.surface as surface_module
     import voro3d.pointcloud.targets as targets_module
 
@@ -808,7 +811,11 @@ def main():
     elif args.shell_depth is not None:
         targets_module.SHELL_DEPTH = float(args.shell_depth)
     if args.bridge_gap is not None:
-        surface_module.MAX_BRIDGE_GAP = args.bridge_gap
+        surface_module.MAX_BRIDGE_GAP = shell_module.MAX_BRIDGE_GAP = args.bridge_gap
+    if args.hug_spacings == "none":
+        shell_module.SheetSurface.hugging = lambda sheet, points, spacing: sheet
+    elif args.hug_spacings is not None:
+        shell_module.HUG_SPACINGS = float(args.hug_spacings)
     if args.hole_level is not None:
         targets_module.HOLE_LEVEL = args.hole_level
     if args.poisson_escape is not None:
@@ -842,6 +849,7 @@ def main():
                 poisson_escape=args.poisson_escape or "default",
                 dense_spacings="default" if args.dense_spacings is None else args.dense_spacings,
                 sheet_support="default" if args.sheet_support is None else args.sheet_support,
+                hug_spacings=args.hug_spacings or "default",
                 auto_width="default" if args.auto_width is None else args.auto_width,
                 line_ratio="default" if args.line_ratio is None else args.line_ratio,
                 sparse_spacings="default" if args.sparse_spacings is None else args.sparse_spacings,

@@ -29,7 +29,8 @@ __all__ = ["SheetSurface", "hug_points", "sheet_surface"]
 # position) 56.6 / 0.773 / 0.236 -> 64.8 / 0.747 / 0.243, 59.8 / 0.755 / 0.282, 50.8 / 0.761 / 0.289 (armadillo
 # from 1 position 256 -> 324 at 0.05: points only a line apart read as two layers). Of 401 clouds (38 dev meshes x
 # 5k, 20k, 0.5% noise, 6 / 3 views; containers, parts and 12 meshes' sparse, noisy and LiDAR clouds), 132 try the
-# shell; 4 more take it (23 -> 27), none fewer.
+# shell; 4 more take it (23 -> 27), none fewer. Rerun: bench_pointcloud.py --no-poisson --hug-spacings none (or 0, 0.1)
+# --folder <containers.py's or parts.py's folder> --conditions ...
 HUG_SPACINGS = 0.05
 # hug_points reads the layers under a vertex from this many nearest points, starting from the highest and the lowest
 # within HUG_REACH spacings across it, in HUG_ROUNDS mean-shift rounds of a band HUG_BAND spacings deep; two layers
