@@ -149,7 +149,7 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
     to_target = float(np.mean(target.distance(sample) if distance is None else distance))
     if to_target <= SHEET_POINTS_GATE * spacing and walls < SHEET_WALLS:
         return None
-    sheet = sheet_target(points, spacing, resolution).hugging(points, spacing)
+    sheet = sheet_target(points, spacing, resolution)
     held = _surface_to_points(sheet, points)
     if held > SHEET_SUPPORT * spacing:
         return None
@@ -158,10 +158,12 @@ def sheet_if_closer(target, points, spacing: float, resolution: int, *, distance
 
 
 def sheet_target(points, spacing: float, resolution: int):
-    """The shell ``SHEET_OFFSET`` spacings (at least a field voxel) around the points, as the grid gives it."""
+    """The shell ``SHEET_OFFSET`` spacings (at least a field voxel) around the points, laid onto them
+    (:meth:`~voro3d.pointcloud.shell.SheetSurface.hugging`)."""
     from .shell import sheet_surface
 
-    return sheet_surface(points, max(grid_voxel(resolution), SHEET_OFFSET * spacing), resolution)
+    sheet = sheet_surface(points, max(grid_voxel(resolution), SHEET_OFFSET * spacing), resolution)
+    return sheet.hugging(points, spacing)
 
 
 def _surface_to_points(target, points, n_samples: int = 20_000) -> float:

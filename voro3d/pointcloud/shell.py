@@ -208,7 +208,8 @@ def _filled(values, triangles, rounds: int = HUG_FILL_ROUNDS):
         known = ~missing[edges[:, 1]]
         summed = np.bincount(edges[known, 0], weights=values[edges[known, 1]], minlength=len(values))
         count = np.bincount(edges[known, 0], minlength=len(values))
-        values[missing & (count > 0)] = summed[missing & (count > 0)] / count[missing & (count > 0)]
+        filled = missing & (count > 0)
+        values[filled] = summed[filled] / count[filled]
     return np.nan_to_num(values, nan=0.0)
 
 

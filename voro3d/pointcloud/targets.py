@@ -60,8 +60,7 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         target was not carved, or why the target is the shell; empty otherwise.
     """
     if choice == "sheet":
-        sheet = sheet_target(given, stats.median_spacing, resolution)
-        return "sheet", sheet.hugging(given, stats.median_spacing), None, ""
+        return "sheet", sheet_target(given, stats.median_spacing, resolution), None, ""
     target, why = None, ""
     if choice == "poisson" or (choice == "auto" and closed):
         target = poisson_surface(points, normals, depth, filter_width=FILTER_WIDTH_PER_NOISE * stats.noise if filtered else None,
