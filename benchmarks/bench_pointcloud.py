@@ -738,16 +738,21 @@ def merge(sources, out: Path, folder: Path):
 
 
 def add_hull_argument(parser) -> None:
-    """``--hull-margin``: the ablation beside ``HULL_MARGIN_NODES``, applied by :func:`set_hull_margin`."""
+    """``--hull-margin`` and ``--rim-crop``: the ablations beside ``HULL_MARGIN_NODES`` and ``RIM_CROP``, applied by
+    :func:`set_hull_margin`."""
     parser.add_argument("--hull-margin", type=float, help="HULL_MARGIN_NODES for this run, the ablation beside it in "
                         "voro3d/pointcloud/tuning.py")
+    parser.add_argument("--rim-crop", type=float, help="RIM_CROP for this run (inf: no open cloud read as a crop), "
+                        "the ablation beside it in voro3d/pointcloud/hull.py")
 
 
 def set_hull_margin(args) -> None:
-    if args.hull_margin is not None:
-        import voro3d.pointcloud.hull as hull_module
+    import voro3d.pointcloud.hull as hull_module
 
+    if args.hull_margin is not None:
         hull_module.HULL_MARGIN_NODES = args.hull_margin
+    if args.rim_crop is not None:
+        hull_module.RIM_CROP = args.rim_crop
 
 
 def main():

@@ -4,7 +4,7 @@ import open3d as o3d
 import pytest
 
 from voro3d.pointcloud import cloud_mesh, reconstruct_points
-from voro3d.pointcloud.hull import clip_to_hull
+from voro3d.pointcloud.hull import clip_to_hull, rim_facing
 from voro3d.pointcloud.tuning import HULL_MARGIN_NODES
 from voro3d.watertight import check_watertight
 
@@ -141,3 +141,35 @@ def test_the_bounded_height_matches_every_plane_s_within_its_range():
     np.testing.assert_array_equal(bounded[within], exact[within])
     np.testing.assert_array_equal(bounded[~within] > 0.05, exact[~within] > 0.05)
     assert np.all((bounded[~within] < 0.02) | (bounded[~within] > 0.05))
+
+
+def test_a_rim_where_the_surface_turned_away_reads_as_a_silhouette_and_one_where_it_stops_as_a_crop():
+    cap = _cap(0.1)
+    disc = np.c_[np.random.default_rng(1).uniform(-0.6, 0.6, (20_000, 2)), np.zeros(20_000)]
+    disc = disc[np.linalg.norm(disc, axis=1) < 0.6]
+    assert rim_facing(cap, cap / 0.6) < 0.3
+    assert rim_facing(disc, np.tile([0.0, 0.0, -1.0], (len(disc), 1))) > 0.99
+
+
+def _valley(n: int = 8000, seed: int = 0):
+    """A shallow dish seen from above (a valley, z = 0.15 r^2 on [-1, 1]^2, with bumps): its rim is where the
+    data ends."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1.0, 1.0, (n, 2))
+    return np.c_[xy, 0.15 * (xy ** 2).sum(axis=1) + 0.03 * np.sin(6.0 * xy[:, 0])]
+
+
+def test_a_valley_seen_from_above_is_not_filled_up_to_its_rim():
+    # Its bending says its outside is below (a surface bends away from its outside), so the closure lies
+    # above it; held by the hull alone it filled the valley up to the plane of its corners, 0.3 over its floor (a
+    # flat lid seen from above). A crop is held a thin shell deep: the air 0.2 over the valley floor stays outside.
+    points = _valley()
+    shape, target, info = reconstruct_points(points, grid=48, steps=60)
+    mesh = cloud_mesh(shape, target)
+    assert check_watertight(mesh).watertight and info.level < 0.25
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    over_floor = np.array([[0.0, 0.0, 0.2], [0.3, -0.2, 0.22]], np.float32)
+    assert not scene.compute_occupancy(o3d.core.Tensor(over_floor)).numpy().any()
+    distance = scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+    assert np.mean(distance) < 0.25 * info.voxel

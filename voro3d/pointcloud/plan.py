@@ -58,6 +58,9 @@ class CloudPlan:
         a table seen from above comes back as thin as its seen edges, not a shell's depth), off for
         one that does: with a part cut away it would take the closure's continuation off with the
         swelling, and no measure of the cloud yet tells the two apart (beside ``HULL_MARGIN_NODES``).
+        An open cloud whose rim is a crop, not a silhouette (a terrain, a flat map:
+        :func:`~voro3d.pointcloud.hull.cropped_rim`), is held a thin shell deep behind its points as
+        well, unless ``"on"``: its hull alone fills a valley up to its rim.
     thin : {"auto", "on", "off"}
         Thin the points along the lines they were sampled on, far apart for their spacing along
         them (a LiDAR's scan lines), whose nearest neighbours all lie on their own line

@@ -30,13 +30,12 @@ from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_hull, settle_normals
 from .surface import imls, winding_level
 from .debris import drop_stray_cells
-from .hull import reach_past_hull
+from .hull import cropped_rim, reach_past_hull
 from .targets import build_target, check_coverage
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
-from .tuning import (CLOUD_STEPS, CLOUD_BOUNDARY_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING,
-                     TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
-                     MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT,
-                     MAX_FIELD_RESOLUTION)
+from .tuning import (CLOUD_STEPS, CLOUD_BOUNDARY_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING,
+                     WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS,
+                     MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -379,6 +378,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
         normal_source += ", flipped"
     level = min(max(level, 0.0), 0.5)
     closed = level > CLOSED_LEVEL
+    cropped = not closed and plan.hull != "on" and cropped_rim(framed, normals, tree=tree)
     denoise = settle_denoise(plan, noisy=noisy, closed=closed, dense=dense)
     given = framed
     if denoise == "on":
@@ -390,10 +390,10 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     depth = poisson_depth(target_grid, stats.median_spacing)
     resolution = min(FIELD_REFINEMENT * target_grid, MAX_FIELD_RESOLUTION)
     filtered = settle_filter(plan, smoothed=denoise == "on", noisy=noisy, noise=stats.noise, depth=depth)
-    kind, target, distance, why = build_target(plan.target, framed, given, normals, widths, stats, level=level,
-                                               closed=closed, depth=depth, resolution=resolution,
-                                               filtered=filtered == "on", dense=dense and denoise == "off",
-                                               hull=settle_hull(plan, closed=closed) == "on", helper=helper)
+    kind, target, distance, why = build_target(plan.target, framed, given, normals, widths, stats, level=level, closed=closed,
+                                               depth=depth, resolution=resolution, filtered=filtered == "on",
+                                               dense=dense and denoise == "off", cropped=cropped, helper=helper,
+                                               hull=settle_hull(plan, closed=closed) == "on")
     if kind == "sheet":
         framed = given
     if kind != "poisson":

@@ -23,7 +23,7 @@ __all__ = ["build_target", "check_coverage"]
 
 
 def build_target(choice: str, points, given, normals, widths, stats, *, level: float, closed: bool, depth: int,
-                 resolution: int, filtered: bool, dense: bool, hull: bool, helper):
+                 resolution: int, filtered: bool, dense: bool, hull: bool, cropped: bool = False, helper):
     """``(kind, target, distance, why)``: the target surface of a plan's ``target`` field.
 
     Parameters
@@ -40,9 +40,10 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         Winding level of the points; ``closed`` when over ``CLOSED_LEVEL``.
     depth, resolution : int
         Poisson octree depth and the IMLS field's (and carve grid's) nodes per side.
-    filtered, dense, hull : bool
+    filtered, dense, hull, cropped : bool
         Bilateral-filter the Poisson input; fit the IMLS target to the points themselves; cut a
-        Poisson or IMLS target back to the points' hull.
+        Poisson or IMLS target back to the points' hull; an open cloud's rim is a crop
+        (:func:`~voro3d.pointcloud.hull.rim_facing`): held ``THINNEST_SHELL_NODES`` deep behind it.
     helper
         Solves half of a split Poisson surface (:func:`~voro3d.pointcloud.poisson.poisson_surface`).
 
@@ -83,13 +84,15 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         else:
             target, why = carve_sightlines(target, points, normals, stats.median_spacing, resolution)
     kind = "poisson" if target is not None else "imls"
+    if target is None and cropped:
+        why = "its rim a crop, not a silhouette: a thin shell behind it"
     if target is None:
         # Behind an open scan the solid is held by the points' hull where it is cut to it, else within
-        # each point's shell depth (a shell under the seen side); a closed cloud's holes are closed at
-        # HOLE_LEVEL. The measurement: beside SHELL_DEPTH.
+        # each point's shell depth (a shell under the seen side; the thinnest behind a crop, which is no
+        # side of a body); a closed cloud's holes are closed at HOLE_LEVEL. The measurement: beside SHELL_DEPTH.
         target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
                                 hole_level=max(level, HOLE_LEVEL) if closed else None,
-                                depth=None if closed or hull else _shell_depth(points, normals, resolution))
+                                depth=None if closed or (hull and not cropped) else _shell_depth(points, normals, resolution, cropped))
     if hull:
         target = clip_to_hull(target, points, resolution)
     if choice == "auto" and not target.dense:
@@ -104,12 +107,13 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
     return kind, target, None, why
 
 
-def _shell_depth(points, normals, resolution: int) -> np.ndarray:
+def _shell_depth(points, normals, resolution: int, cropped: bool) -> np.ndarray:
     """Each point's depth behind an open scan (:func:`~voro3d.pointcloud.surface.shell_depths`): from
-    ``THINNEST_SHELL_NODES`` nodes of the field's grid up to ``SHELL_DEPTH``."""
+    ``THINNEST_SHELL_NODES`` nodes of the field's grid up to ``SHELL_DEPTH``; the least behind a crop."""
     from ..geometry import grid_voxel
 
-    return shell_depths(points, normals, SHELL_DEPTH, THINNEST_SHELL_NODES * grid_voxel(resolution))
+    least = THINNEST_SHELL_NODES * grid_voxel(resolution)
+    return np.full(len(points), least) if cropped else shell_depths(points, normals, SHELL_DEPTH, least)
 
 
 def check_coverage(target, points, widths, *, distance=None) -> None:
