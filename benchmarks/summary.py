@@ -364,18 +364,20 @@ on the third-missing clouds, two capped at 120 s).""",
     "pointcloud_terrain": """\
 Open surfaces seen from one side, none in the dev data (`benchmarks/terrain.py`): a hill, a valley and
 a saddle (100 x 100 m terrain patches with bumps) and a flat map with a coastline, the truth being the
-open surface itself, all three methods in one run (2026-12-08). Their rim is where the data ends, not
-where the surface turned away from a sensor, so nothing says on which side a body lies: held by the
-points' hull alone (the rule for one-sided scans) the valley was filled up to its rim, a flat lid seen
-from above, and the map out to its convex outline; a cloud whose rim faces the way its points do
-(`hull.rim_facing` over `RIM_CROP`) is now held a thin shell (two VoroMesh voxels) deep as well: mean
-CD / NC / F1 275.1 / 0.961 / 0.553 -> 48.3 / 0.975 / 0.594 over the 16 clouds (valley at 5k 463.5 ->
-44.1, map 137.3 -> 16.9); no cloud of the dev, container or table-scene benchmarks reads as a crop.
-Poisson balloons the map into a square sheet (CD 437-476) but follows the terrains closer (8-10;
-ours 35-49: the shell's back face lies two voxels behind the points), and alpha wrap's crust, its
-offset a six-hundredth of the diagonal, is closest of all (0.8-6). Left: from one view, the
-terrains' occlusion gaps are holes through the shell (the valley), and the hill's unseen far side
-is missing (200.7 against Poisson's 55.1). 2.6x Open3D's pipeline's time summed.""",
+open surface itself, all three methods in one run (2026-12-08; the 0.5% noise row in a second). Their
+rim is where the data ends, not where the surface turned away from a sensor, so nothing says on which
+side a body lies: held by the points' hull alone (the rule for one-sided scans) the valley was filled
+up to its rim, a flat lid seen from above, and the map out to its convex outline; a cloud whose rim
+faces the way its points do (`hull.rim_facing` over `RIM_CROP`) is now held a thin shell (two VoroMesh
+voxels) deep as well: mean CD / NC / F1 275.1 / 0.961 / 0.553 -> 48.3 / 0.975 / 0.594 over the 16
+clean, 0.25%-noise and one-view clouds (valley at 5k 463.5 -> 44.1, map 137.3 -> 16.9); no cloud of
+the dev, container or table-scene benchmarks reads as a crop. Poisson balloons the map into a square
+sheet (CD 438-480) but follows the terrains closer (8-10; ours 35-49: the shell's back face lies two
+voxels behind the points), and alpha wrap's crust, its offset a six-hundredth of the diagonal, is
+closest of all (0.8-6). At 0.5% noise the rims read as silhouettes, but all four take the shell
+around the points (`SHEET_POINTS_GATE`): CD 7.8-10.6, F1 under 0.07. Left: from one view the
+terrains' occlusion gaps are holes through the shell (the valley), and the hill's unseen far side is
+missing (200.7 against Poisson's 54.6). 2.65x Open3D's pipeline's time summed.""",
     "pointcloud_parts": """\
 Seven shapes that are not in the dev data (`benchmarks/parts.py`): CAD parts with flat faces on
 round coordinates (an L bracket with holes, a gear, a hex nut, a pipe tee open at its ends with
