@@ -314,7 +314,8 @@ def build_parser() -> argparse.ArgumentParser:
                               "around the points (thin walls) (default: from the cloud; the plan chosen is printed)")
     rebuild.add_argument("--hull", choices=PLAN_FIELDS["hull"], default="auto",
                          help="point clouds: cut the target back to the points' convex hull, for range scans from a "
-                              "few viewpoints (default: on for one-sided scans, off for clouds that enclose a volume)")
+                              "few viewpoints (default: on for one-sided scans, whose solid is also held a thin shell deep "
+                              "where their rim is a crop, a terrain or a map; off for clouds that enclose a volume)")
     rebuild.add_argument("--thin", choices=PLAN_FIELDS["thin"], default="auto",
                          help="point clouds: thin points sampled along scan lines far apart for their spacing along "
                               "them (a LiDAR's) until their neighbourhoods are two-dimensional (default: when they "
