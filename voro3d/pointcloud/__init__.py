@@ -84,9 +84,9 @@ the points define (``voro3d/pointcloud/``):
      away from them (a distance to its level set), at the level that puts the solid behind the
      scanned side, held by the points' convex hull where the plan cuts to it (``hull.py``; auto
      for open clouds; where their rim is a crop, not a silhouette, a terrain or a flat map, also
-     within a thin shell's depth: ``hull.rim_facing``), else within each point's shell depth (the radius of the seen surface's
-     curvature, made the least within two field nodes and averaged over them, at most
-     ``SHELL_DEPTH``, 6% of the diagonal) of the points where they do not enclose it (a
+     within a thin shell's depth: ``hull.rim_facing``), else within each point's shell depth (the
+     radius of the seen surface's curvature, made the least within two field nodes and averaged
+     over them, at most ``SHELL_DEPTH``, 6% of the diagonal) of the points where they do not enclose it (a
      shell under the seen side instead of a block out to the box; ``fields.py``), its pieces
      less than ``MAX_BRIDGE_GAP`` apart (what one viewpoint sees apart) joined by thin rods
      (``fields.bridge``; also the shell below), sampled on a

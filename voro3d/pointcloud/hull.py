@@ -36,24 +36,23 @@ RIM_GAP = 5.0 * np.pi / 6.0
 # Points whose rim test is read, at most (evenly): on 300k-point one-view scans (bunny, fandisk, abc_00000005) 20k
 # read within 0.03 of 100k's, in 0.1-0.3 s instead of 0.7-1.2 s (2026-12-08, a loaded machine).
 RIM_SAMPLE = 20_000
-# An open cloud whose rim_facing is over this is a crop: its solid held THINNEST_SHELL_NODES deep behind its points,
-# not by its hull alone. Read (2026-12-08, no normals): one-view scans of the 12 benchmark meshes 0.57-0.71 (0.3% depth
+# An open cloud whose rim_facing is over this is a crop: its solid held THINNEST_SHELL_NODES deep behind its points, not
+# by its hull alone. Read (2026-12-08, no normals): one-view scans of the 12 benchmark meshes 0.57-0.71 (0.3% depth
 # noise 0.54-0.68, 300k points 0.46-0.62), objects on a table (bench_scenes) 0.57-0.72, containers.py's from one view
 # 0.44-0.78, hippo2 0.79; terrain.py's hill, valley, saddle and map 0.87-1.00 (0.87-0.94 at 0.25% noise), poste_france
 # 0.92. A LiDAR's lines read as rims throughout (0.16-0.96). Noise as deep as the spacing turns the plane fits every
 # way: the terrains at 0.5% / 1% noise read 0.63-0.67 / 0.48-0.53 (at 0.5% all four take the shell around the points,
 # SHEET_POINTS_GATE, CD 7.8-10.6; at 1% two the shell, the map Poisson, the saddle the hull, CD 17.8-51.9). Read on the
 # IMLS gradients after the smoothing: 0.57-0.89 / 0.43-0.45, the rims curled; on normals averaged over the neighbours
-# the card from one view reads 0.92. Off (inf) against 0.85, grid 64, one run each: 48 dev
-# clouds (the 12 meshes from 1 view, 1 view with 0.3% noise, 1 LiDAR position, 3 views), 28 of containers.py (1, 3, 6
-# views, clean 5k), 24 table scenes (1, 3 views) and hippo2, point_set_3, radar: no change (at 0.82 abc_00000005 from
-# 1 LiDAR position turns a crop and loses, CD 4944 -> 6983);
-# terrain.py's 16 clouds (clean 5k / 20k, 0.25% noise, 1 view) CD / NC / F1 275.1 / 0.961 / 0.553 -> 48.3 / 0.975 /
-# 0.594 (the valley at 5k 463.5 -> 44.1: its hull filled it to its rim, a lid seen from above; 1 view NC 0.960 ->
-# 0.956, the scan's occlusion gaps now holes through the shell), poste_france its outline, not its hull's (kept points'
-# distance 2.28e-6 -> 1.74e-5, Poisson 3.25e-5). Rerun: bench_pointcloud.py or bench_scenes.py --rim-crop inf. The
-# thin shell's limit closed by 12 field nodes (its gaps filled, a smooth dimple): the valley from one view NC 0.966 ->
-# 0.974 but CD 50.2 -> 51.4, the clean terrains CD +4-15%: not kept.
+# the card from one view reads 0.92. Off (inf) against 0.85, grid 64, one run each: 48 dev clouds (the 12 meshes from 1
+# view, 1 view with 0.3% noise, 1 LiDAR position, 3 views), 28 of containers.py (1, 3, 6 views, clean 5k), 24 table
+# scenes (1, 3 views) and hippo2, point_set_3, radar: no change (at 0.82 abc_00000005 from 1 LiDAR position turns a crop
+# and loses, CD 4944 -> 6983); terrain.py's 16 clouds (clean 5k / 20k, 0.25% noise, 1 view) CD / NC / F1 275.1 / 0.961 /
+# 0.553 -> 48.3 / 0.975 / 0.594 (the valley at 5k 463.5 -> 44.1: its hull filled it to its rim, a lid seen from above; 1
+# view NC 0.960 -> 0.956, the scan's occlusion gaps now holes through the shell), poste_france its outline, not its
+# hull's (kept points' distance 2.28e-6 -> 1.74e-5, Poisson 3.25e-5). Rerun: bench_pointcloud.py or bench_scenes.py
+# --rim-crop inf. The thin shell's limit closed by 12 field nodes (its gaps filled, a smooth dimple): the valley from
+# one view NC 0.966 -> 0.974 but CD 50.2 -> 51.4, the clean terrains CD +4-15%: not kept.
 RIM_CROP = 0.85
 # Queries x planes tested at once: BLOCK x 256, 16 MB of float32.
 BLOCK = 16384
@@ -229,7 +228,7 @@ def rim_facing(points: np.ndarray, normals: np.ndarray, *, tree=None) -> float:
     Where a scan's view of a surface ended because the surface turned away from the sensor (an
     object's silhouette; grazing hits are not kept) its rim faces across the view; where the surface
     just stops (a terrain's or a facade's crop, a plate seen face on), along it: one-view scans of
-    objects read 0.53-0.73, a terrain or a flat map 0.93-0.99.
+    objects read 0.44-0.78, terrains and a flat map 0.87-1.00 (``RIM_CROP``'s measurement).
     A rim point's ``RIM_NEIGHBOURS`` nearest neighbours, seen round its normal, leave over ``RIM_GAP``
     of the circle empty; ``RIM_SAMPLE`` points, evenly, are read.
 

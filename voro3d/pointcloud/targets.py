@@ -92,7 +92,8 @@ def build_target(choice: str, points, given, normals, widths, stats, *, level: f
         # side of a body); a closed cloud's holes are closed at HOLE_LEVEL. The measurement: beside SHELL_DEPTH.
         target = target_surface(points, normals, widths, resolution, dense=dense, level=level,
                                 hole_level=max(level, HOLE_LEVEL) if closed else None,
-                                depth=None if closed or (hull and not cropped) else _shell_depth(points, normals, resolution, cropped))
+                                depth=None if closed or (hull and not cropped)
+                                else _shell_depth(points, normals, resolution, cropped))
     if hull:
         target = clip_to_hull(target, points, resolution)
     if choice == "auto" and not target.dense:
