@@ -1,14 +1,13 @@
 """Point cloud -> VoroMesh: clean, orient, build a smooth target surface, fit the generators to it.
 
-Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of a 64^3 grid empty, and
-noise pulls generators off the surface. So the VoroLoss fit sees dense samples (as many as a mesh fit
-gets) of a target surface that the points define: screened Poisson for points that enclose a volume
-(:mod:`voro3d.pointcloud.poisson`), carved where it buries points that were seen
-(:mod:`voro3d.pointcloud.sightlines`); a robust IMLS field with the winding number of the points behind
-it for open, one-sided scans, held within a shell's depth of the points where they do not enclose it
-(:mod:`voro3d.pointcloud.surface`); or, for walls sampled on both sides closer than the point spacing, a
-shell around the points (:func:`~voro3d.pointcloud.shell.sheet_surface`); the same target labels the
-cells. :func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
+Raw points are neither dense nor exact: a 5,000-point scan leaves most voxels of a 64^3 grid empty, and noise pulls
+generators off the surface. So the VoroLoss fit sees dense samples (as many as a mesh fit gets) of a target surface
+that the points define: screened Poisson for points that enclose a volume (:mod:`voro3d.pointcloud.poisson`), carved
+where it buries points that were seen (:mod:`voro3d.pointcloud.sightlines`); a robust IMLS field with the winding
+number of the points behind it for open, one-sided scans, held within a shell's depth of the points where they do not
+enclose it (:mod:`voro3d.pointcloud.surface`); or, for walls sampled on both sides closer than the point spacing, a
+shell around the points (:func:`~voro3d.pointcloud.shell.sheet_surface`); the same target labels the cells.
+:func:`cloud_mesh` extracts the watertight mesh, cleans it and fits its vertices to the target
 (:func:`voro3d.snapping.snap_to_surface`), its triangles split first where the target is finer than the grid.
 """
 from __future__ import annotations
@@ -28,14 +27,13 @@ from .scanlines import thin_lines
 from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_hull, settle_normals
-from .surface import imls, winding_level
+from .surface import cavity_walls, imls, winding_level
 from .debris import drop_stray_cells
 from .hull import cropped_rim, reach_past_hull
 from .targets import build_target, check_coverage
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
-from .tuning import (CLOUD_STEPS, CLOUD_BOUNDARY_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING,
-                     WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS,
-                     MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
+from .tuning import (CLOUD_STEPS, CLOUD_BOUNDARY_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS,
+                     MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -322,8 +320,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     sides = normals if normal_source == "given" else None
     stats = cloud_stats(framed, tree=tree, neighbours=neighbours, normals=sides)
     if not stats.median_spacing > 1e-9:
-        raise ValueError("most points are duplicated (their neighbours sit at the same position): no surface can be "
-                         "fitted to them")
+        raise ValueError("most points are duplicated (their neighbours sit at the same position): no surface can be fitted to them")
     noisy = stats.fine_noise > NOISY * stats.median_spacing
     fill = fill_ratio(framed, stats.median_spacing)
     # Points spread through a volume have no plane at the spacing's scale (they read as noisy: 0.31-0.32
@@ -369,13 +366,17 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     widths = np.maximum(per_spacing * stats.spacing, WIDTH_PER_NOISE * stats.noise)
     areas = point_areas(framed, tree=tree, distances=None if neighbours is None else neighbours[0],
                         indices=None if neighbours is None else neighbours[1], normals=sides)
-    level = winding_level(framed, normals, areas, float(np.median(widths)))
+    width = float(np.median(widths))
+    level, middles = winding_level(framed, normals, areas, width, return_middles=True)
     neighbours = None  # 21 neighbours a point: not kept through the fit
     if level < -CLOSED_LEVEL and normal_plan != "trust":
         # Consistent normals of a closed surface that all point inward (the global sign of a
         # tangent-plane orientation is arbitrary): the winding number reads -1 inside.
-        normals, level = -normals, -level
+        normals, level, middles = -normals, -level, -middles
         normal_source += ", flipped"
+    cavity = (cavity_walls(framed, normals, areas, width) if normal_plan != "trust" and middles.max() > 1.0
+              else np.zeros(len(framed), bool))  # every point read only where a probe reads a cavity's wall
+    normals[cavity] *= -1.0
     level = min(max(level, 0.0), 0.5)
     closed = level > CLOSED_LEVEL
     cropped = not closed and plan.hull != "on" and cropped_rim(framed, normals, tree=tree)
@@ -396,8 +397,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
                                                hull=settle_hull(plan, closed=closed) == "on")
     if kind == "sheet":
         framed = given
-    if kind != "poisson":
-        filtered = "off"
+    filtered = filtered if kind == "poisson" else "off"
     check_coverage(target, framed, widths, distance=distance if framed is given else None)
     surface_vertices = target.project(target.vertices)
     plan = CloudPlan(normals=normal_plan, denoise=denoise, filter=filtered, target=kind,
@@ -408,8 +408,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     flat = ", and target imls with it closes it flat" if kind == "poisson" else ""
     reach = (f"; its closure reaches {past / 2:.0%} of the diagonal past the points' convex hull (plan hull on cuts "
              f"it back{flat}: scans from a few viewpoints)" if past else "")
-    notes = [why] if why else []
-    notes += getattr(target, "carves", [])
+    notes = ([why] if why else []) + getattr(target, "carves", [])
+    notes += [f"{int(cavity.sum()):,} normals on a cavity's wall turned inward"] if cavity.any() else []
     report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + note for note in notes)}"
                  f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
                  f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}{reach}", seconds["surface"])
