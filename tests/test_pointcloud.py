@@ -12,7 +12,7 @@ from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio
 from voro3d.pointcloud.fields import smooth_band_edge, smooth_maximum
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.shell import sheet_surface
-from voro3d.pointcloud.surface import cavity_walls, target_surface, winding_level
+from voro3d.pointcloud.surface import cavity_walls, probe_windings, target_surface, winding_level
 from voro3d.pointcloud.tuning import CLOSED_LEVEL, MAX_POISSON_ESCAPE, NOISY, SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
 from voro3d.queries import point_areas
@@ -130,6 +130,13 @@ def test_a_cavity_s_wall_reads_an_odd_winding_number_and_only_it():
     outward = points / np.linalg.norm(points, axis=1, keepdims=True)  # what orient_normals' bending rule gives both
     assert np.array_equal(cavity_walls(points, outward, areas, 0.02), (outward * truth).sum(axis=1) < 0)
     assert not cavity_walls(points, truth, areas, 0.02).any()
+    # The probes find the wall first; with true normals none reads over 1 and no point is read.
+    for normals in (outward, truth):
+        windings = probe_windings(points, normals, areas, 0.02, n_probes=2000)
+        assert np.array_equal(cavity_walls(points, normals, areas, 0.02, windings=windings),
+                              cavity_walls(points, normals, areas, 0.02))
+    assert probe_windings(points, outward, areas, 0.02).mean(axis=0).max() > 1.3
+    assert probe_windings(points, truth, areas, 0.02).mean(axis=0).max() < 0.8
 
 
 def test_a_hollow_ball_keeps_its_cavity():

@@ -27,7 +27,7 @@ from .scanlines import thin_lines
 from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_hull, settle_normals
-from .surface import cavity_walls, imls, winding_level
+from .surface import cavity_walls, imls, probe_windings, winding_level
 from .debris import drop_stray_cells
 from .hull import cropped_rim, reach_past_hull
 from .targets import build_target, check_coverage
@@ -367,15 +367,15 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     areas = point_areas(framed, tree=tree, distances=None if neighbours is None else neighbours[0],
                         indices=None if neighbours is None else neighbours[1], normals=sides)
     width = float(np.median(widths))
-    level, middles = winding_level(framed, normals, areas, width, return_middles=True)
+    windings = probe_windings(framed, normals, areas, width)
+    level = winding_level(framed, normals, areas, width, windings=windings)
     neighbours = None  # 21 neighbours a point: not kept through the fit
     if level < -CLOSED_LEVEL and normal_plan != "trust":
         # Consistent normals of a closed surface that all point inward (the global sign of a
         # tangent-plane orientation is arbitrary): the winding number reads -1 inside.
-        normals, level, middles = -normals, -level, -middles
+        normals, level, windings = -normals, -level, -windings
         normal_source += ", flipped"
-    cavity = (cavity_walls(framed, normals, areas, width) if normal_plan != "trust" and middles.max() > 1.0
-              else np.zeros(len(framed), bool))  # every point read only where a probe reads a cavity's wall
+    cavity = cavity_walls(framed, normals, areas, width, windings=windings) & (normal_plan != "trust")  # given normals stand
     normals[cavity] *= -1.0
     level = min(max(level, 0.0), 0.5)
     closed = level > CLOSED_LEVEL

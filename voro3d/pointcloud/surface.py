@@ -24,7 +24,7 @@ from .fields import (MIN_SUPPORT, GridSurface, bridge, depth_limit, limit_reach,
 from .nodes import node_distance
 from .tuning import MAX_BRIDGE_GAP, SHELL_ROUNDING_NODES
 
-__all__ = ["TargetSurface", "cavity_walls", "imls", "shell_depths", "target_surface", "winding_level"]
+__all__ = ["TargetSurface", "cavity_walls", "imls", "probe_windings", "shell_depths", "target_surface", "winding_level"]
 
 # Neighbours that enter one IMLS evaluation. Gaussian weights beyond ~3 kernel widths vanish;
 # 32 neighbours cover that for the widths used (0.75-1.5 spacings, more on noisy clouds).
@@ -358,7 +358,19 @@ def _resample(values, resolution: int) -> np.ndarray:
     return values
 
 
-def winding_level(points, normals, areas, offset: float, *, n_probes: int = 20000, return_middles: bool = False):
+def probe_windings(points, normals, areas, offset: float, *, n_probes: int = 20000) -> np.ndarray:
+    """(2, m) float: the points' winding number ``offset`` behind (row 0) and in front of (row 1) up to
+    ``n_probes`` of them (a seeded subset), what :func:`winding_level` and :func:`cavity_walls` read."""
+    from ..queries import point_winding_number
+
+    probes = np.random.default_rng(0).permutation(points.shape[0])[:n_probes]
+    # One evaluation for both sides: libigl builds its octree and expansions once per call.
+    return point_winding_number(points, normals, np.vstack([points[probes] - offset * normals[probes],
+                                                            points[probes] + offset * normals[probes]]),
+                                areas=areas).reshape(2, len(probes))
+
+
+def winding_level(points, normals, areas, offset: float, *, n_probes: int = 20000, windings=None) -> float:
     """The winding number that separates inside from outside for this cloud.
 
     Just behind a closed sampled surface the winding number is near 1 and just in front near 0:
@@ -366,20 +378,15 @@ def winding_level(points, normals, areas, offset: float, *, n_probes: int = 2000
     -0.5 in front, where 0.5 would find no inside at all; the level is then about 0, and the
     solid is what lies behind the scanned side. So the level is the midpoint of the median
     winding numbers ``offset`` behind and in front of (up to ``n_probes``) points. Normals that
-    point inward turn every winding number's sign: a closed cloud then reads about -0.5. With
-    ``return_middles``, also each probe's own midpoint (:func:`cavity_walls` looks for one over 1).
+    point inward turn every winding number's sign: a closed cloud then reads about -0.5.
+    ``windings``: :func:`probe_windings`' result, when the caller has it already.
     """
-    from ..queries import point_winding_number
-
-    probes = np.random.default_rng(0).permutation(points.shape[0])[:n_probes]
-    # One evaluation for both sides: libigl builds its octree and expansions once per call.
-    winding = point_winding_number(points, normals, np.vstack([points[probes] - offset * normals[probes],
-                                                               points[probes] + offset * normals[probes]]), areas=areas)
-    level = float(0.5 * (np.median(winding[:len(probes)]) + np.median(winding[len(probes):])))
-    return (level, 0.5 * (winding[:len(probes)] + winding[len(probes):])) if return_middles else level
+    if windings is None:
+        windings = probe_windings(points, normals, areas, offset, n_probes=n_probes)
+    return float(0.5 * (np.median(windings[0]) + np.median(windings[1])))
 
 
-def cavity_walls(points, normals, areas, offset: float, *, k: int = 16) -> np.ndarray:
+def cavity_walls(points, normals, areas, offset: float, *, k: int = 16, windings=None) -> np.ndarray:
     """(n,) bool: the points of a closed surface inside another's solid whose normals point out of the
     cavity it bounds, as :func:`~voro3d.pointcloud.normals.orient_normals` leaves a hollow ball's inner
     sphere (a part bending away from its normals' side is turned outward).
@@ -389,7 +396,8 @@ def cavity_walls(points, normals, areas, offset: float, *, k: int = 16) -> np.nd
     point's reading is the median over its ``k`` nearest, and the walls are the pieces of the points
     that read over 1 (joined through those neighbours) whose median reads within 1/4 of 3/2: noise of
     1% of the diagonal puts scattered points and patches at 1.0-1.3, a wall all its points at 1.3-1.6.
-    Read on every point: a caller looks at :func:`winding_level`'s probes first.
+    Given :func:`probe_windings`' result in ``windings``, no point is read (nor any flagged) unless a
+    probe reads over 1 midway: every point costs two winding-number queries, the probes 40,000 in all.
 
     Measured (grid 64, 2026-12-08, ``bench_pointcloud.py --cavity-walls off`` against on): the 15 clouds of
     ``benchmarks/hollow.py`` (a ball, three sealed boxes, a tank) at clean 5k / 20k / 0.25% noise, mean CD
@@ -404,6 +412,8 @@ def cavity_walls(points, normals, areas, offset: float, *, k: int = 16) -> np.nd
 
     from ..queries import point_winding_number
 
+    if windings is not None and not (windings.mean(axis=0) > 1.0).any():
+        return np.zeros(len(points), bool)
     winding = point_winding_number(points, normals, np.vstack([points - offset * normals, points + offset * normals]),
                                    areas=areas)
     neighbours = cKDTree(points).query(points, min(k, len(points)))[1]
