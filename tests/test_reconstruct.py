@@ -127,6 +127,18 @@ def test_winding_number_inside_outside(torus_cloud):
     assert winding[0] < 0.2 and winding[1] > 0.8 and winding[2] < 0.2
 
 
+def _ball(n: int) -> np.ndarray:
+    directions = np.random.default_rng(1).normal(size=(n, 3))
+    return directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+def test_points_on_a_lattice_as_fine_as_their_spacing_are_a_surface():
+    # A ball's voxels at 64^3: every coordinate a multiple of the voxel, which is also the spacing.
+    voxels = np.unique(np.round(_ball(200_000) * 32.0), axis=0) / 32.0
+    mesh = reconstruct(voxels, **FAST)
+    assert check_watertight(mesh).watertight and abs(np.linalg.norm(np.asarray(mesh.vertices), axis=1).mean() - 1.0) < 0.03
+
+
 @pytest.mark.parametrize("geometry, match", [
     (np.zeros((0, 3)), "at least 100"),
     (np.random.default_rng(0).random((50, 3)), "at least 100"),
@@ -136,6 +148,8 @@ def test_winding_number_inside_outside(torus_cloud):
     (np.repeat(np.eye(4, 3), 50, axis=0), r"4 distinct points \(196 duplicated points merged\)"),
     ([[0.0, 0.0, 0.0], [1.0, 2.0]], "geometry must be an Open3D point cloud or triangle mesh"),
     ({"points": np.zeros((200, 3))}, "geometry must be .* got dict"),
+    # A ball 1 m wide at UTM coordinates stored as float32: its x and y take steps of 1/32 and 1/4.
+    ((_ball(5000) * 0.5 + [512345.6, 4123456.7, 250.0]).astype(np.float32), "y coordinates take only 5 distinct values"),
 ])
 def test_bad_clouds(geometry, match):
     with pytest.raises(ValueError, match=match):
