@@ -52,7 +52,10 @@ RIM_SAMPLE = 20_000
 # view NC 0.960 -> 0.956, the scan's occlusion gaps now holes through the shell), poste_france its outline, not its
 # hull's (kept points' distance 2.28e-6 -> 1.74e-5, Poisson 3.25e-5). Rerun: bench_pointcloud.py or bench_scenes.py
 # --rim-crop inf. The thin shell's limit closed by 12 field nodes (its gaps filled, a smooth dimple): the valley from
-# one view NC 0.966 -> 0.974 but CD 50.2 -> 51.4, the clean terrains CD +4-15%: not kept.
+# one view NC 0.966 -> 0.974 but CD 50.2 -> 51.4, the clean terrains CD +4-15%: not kept. Nor a thinner shell
+# (tuning.THINNEST_SHELL_NODES 4 -> 3 nodes on the 16 clouds, 2026-12-08): CD 48.3 -> 33.1, F1 0.594 -> 0.608, but NC
+# 0.975 -> 0.966, the hill at 5k pitted with scales across its top (rendered; NC 0.980 -> 0.960); at 2 nodes the 5k
+# clouds fall apart (one piece 1 of 4, NC 0.658). F1 stays: any back face a VoroMesh voxel holds lies over 0.003 off.
 RIM_CROP = 0.85
 # Queries x planes tested at once: BLOCK x 256, 16 MB of float32.
 BLOCK = 16384
