@@ -90,7 +90,7 @@ def cut_picture(folder: Path, out: Path) -> None:
 
 
 def main() -> None:
-    import open3d as o3d
+    from voro3d.io import save_mesh
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", type=Path)
@@ -98,9 +98,8 @@ def main() -> None:
     args = parser.parse_args()
     args.folder.mkdir(parents=True, exist_ok=True)
     for name, (vertices, triangles) in shapes().items():
-        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
-        o3d.io.write_triangle_mesh(str(args.folder / f"{name}.ply"), mesh)
-        print(f"{name}: {len(vertices)} vertices, {len(triangles)} triangles")
+        print(f"{save_mesh((vertices, triangles), args.folder / f'{name}.ply')}: {len(vertices)} vertices, "
+              f"{len(triangles)} triangles")
     if args.picture:
         cut_picture(args.folder, args.picture)
 

@@ -55,16 +55,15 @@ def shapes() -> dict:
 
 
 def main() -> None:
-    import open3d as o3d
+    from voro3d.io import save_mesh
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", type=Path)
     args = parser.parse_args()
     args.folder.mkdir(parents=True, exist_ok=True)
     for name, (vertices, triangles) in shapes().items():
-        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
-        o3d.io.write_triangle_mesh(str(args.folder / f"{name}.ply"), mesh)
-        print(f"{name}: {len(vertices)} vertices, {len(triangles)} triangles")
+        print(f"{save_mesh((vertices, triangles), args.folder / f'{name}.ply')}: {len(vertices)} vertices, "
+              f"{len(triangles)} triangles")
 
 
 if __name__ == "__main__":
