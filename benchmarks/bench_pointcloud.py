@@ -739,13 +739,13 @@ def merge(sources, out: Path, folder: Path):
 
 def add_hull_argument(parser) -> None:
     """``--hull-margin``, ``--rim-crop`` and ``--cavity-walls``: the ablations beside ``HULL_MARGIN_NODES``, ``RIM_CROP``
-    and ``surface.cavity_walls``, applied by :func:`set_hull_margin`."""
+    and ``sides.cavity_walls``, applied by :func:`set_hull_margin`."""
     parser.add_argument("--hull-margin", type=float, help="HULL_MARGIN_NODES for this run, the ablation beside it in "
                         "voro3d/pointcloud/tuning.py")
     parser.add_argument("--rim-crop", type=float, help="RIM_CROP for this run (inf: no open cloud read as a crop), "
                         "the ablation beside it in voro3d/pointcloud/hull.py")
     parser.add_argument("--cavity-walls", choices=("on", "off"), default="on",
-                        help="off: no point's normal turned inward on a cavity's wall (surface.cavity_walls), its ablation")
+                        help="off: no point's normal turned inward on a cavity's wall (sides.cavity_walls), its ablation")
 
 
 def set_hull_margin(args) -> None:
@@ -756,9 +756,9 @@ def set_hull_margin(args) -> None:
     if args.rim_crop is not None:
         hull_module.RIM_CROP = args.rim_crop
     if args.cavity_walls == "off":
-        import voro3d.pointcloud.reconstruct as reconstruct_module
+        import voro3d.pointcloud.sides as sides_module
 
-        reconstruct_module.cavity_walls = lambda points, *rest: np.zeros(len(points), bool)
+        sides_module.cavity_walls = lambda points, *rest, **options: np.zeros(len(points), bool)
 
 
 def main():

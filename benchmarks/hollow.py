@@ -10,7 +10,7 @@ with manifold3d, in millimetres, and written as PLY meshes into a folder for ``b
         "noise 0.25%" --out benchmarks/results/pointcloud_hollow
 
 ``--picture`` draws the meshes cut in half through their centre (their cavity shows): truth, VoroMesh without
-``surface.cavity_walls`` and with it, alpha wrap, on each ``PICTURED`` cloud.
+``sides.cavity_walls`` and with it, alpha wrap, on each ``PICTURED`` cloud.
 """
 from __future__ import annotations
 
@@ -58,12 +58,12 @@ def cut_picture(folder: Path, out: Path) -> None:
     from bench_pointcloud import alpha_wrap, make_cloud
     from figures import render_rows
 
-    import voro3d.pointcloud.reconstruct as reconstruct_module
+    import voro3d.pointcloud.sides as sides_module
     from voro3d.io import load_mesh
     from voro3d.metrics import evaluate
     from voro3d.pointcloud import cloud_mesh, reconstruct_points
 
-    rows, rule = [], reconstruct_module.cavity_walls
+    rows, rule = [], sides_module.cavity_walls
     for name, condition in PICTURED:
         source = load_mesh(folder / f"{name}.ply")
         points = make_cloud(source, condition)
@@ -71,13 +71,13 @@ def cut_picture(folder: Path, out: Path) -> None:
         while len(truth.triangles) < 20000:  # a box's 24 triangles would be halved whole
             truth = truth.subdivide_midpoint(1)
         meshes, titles = [halved(truth)], [f"{name}, {condition}, cut"]
-        for label, walls in (("without the cavity rule", lambda points, *rest: np.zeros(len(points), bool)),
+        for label, walls in (("without the cavity rule", lambda points, *rest, **options: np.zeros(len(points), bool)),
                              ("with it", rule)):
-            reconstruct_module.cavity_walls = walls
+            sides_module.cavity_walls = walls
             try:
                 shape, target, info = reconstruct_points(points, grid=64)
             finally:
-                reconstruct_module.cavity_walls = rule
+                sides_module.cavity_walls = rule
             mesh = cloud_mesh(shape, target)
             meshes.append(halved(mesh))
             titles.append(f"{label}: CD {evaluate(mesh, source)['chamfer_x1e5']:.1f}")

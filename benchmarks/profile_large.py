@@ -50,7 +50,7 @@ WRAPPED = {
     "voro3d.pointcloud": ["separate_objects", "reconstruct_points", "cloud_mesh"],
     "voro3d.pointcloud.reconstruct": ["merge_duplicates", "outlier_mask", "cloud_stats", "local_dimension",
                                       "fill_ratio", "estimate_normals", "orient_normals", "sign_disagreement",
-                                      "point_areas", "probe_windings", "cavity_walls", "imls", "poisson_surface", "target_surface",
+                                      "point_areas", "outward_normals", "imls", "poisson_surface", "target_surface",
                                       "sheet_if_closer", "sheet_target", "_check_coverage", "check_coverage", "target_samples",
                                       "fit_band", "drop_stray_cells"],
     "voro3d.pointcloud.targets": ["poisson_surface", "target_surface", "sheet_if_closer", "sheet_target"],

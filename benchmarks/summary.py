@@ -386,7 +386,7 @@ pieces is right (the cavity's wall is a surface of its own), so the one-piece co
 The orienter turns a part bending away from its normals' side outward, which leaves the cavity's wall
 facing into the cavity, and Poisson read it as a second solid inside the first; the winding number
 midway across such a wall reads 3/2 where an outer surface reads 1/2, and those walls are now turned
-back (`surface.cavity_walls`): mean CD 43.1 / 18.8 / 20.7 -> 19.0 / 4.0 / 4.6 at clean 5k / 20k / 0.25%
+back (`sides.cavity_walls`): mean CD 43.1 / 18.8 / 20.7 -> 19.0 / 4.0 / 4.6 at clean 5k / 20k / 0.25%
 noise (ball at 20k 20.0 -> 1.1, box6 20.8 -> 2.5; `--cavity-walls off`, VoroMesh only), against alpha
 wrap's 24.7 / 4.3 / 6.3 and Open3D's pipeline's 35.8 / 18.0 / 18.5; no point turned on 168 clouds of
 the dev meshes, containers and parts. Left: walls under ~1.3 spacings (box3 at every density, box6 and

@@ -12,7 +12,8 @@ from voro3d.pointcloud import (cloud_mesh, cloud_stats, colored_mesh, fill_ratio
 from voro3d.pointcloud.fields import smooth_band_edge, smooth_maximum
 from voro3d.pointcloud.poisson import _supported_pieces, poisson_depth, poisson_surface
 from voro3d.pointcloud.shell import sheet_surface
-from voro3d.pointcloud.surface import cavity_walls, probe_windings, target_surface, winding_level
+from voro3d.pointcloud.sides import cavity_walls, probe_windings, winding_level
+from voro3d.pointcloud.surface import target_surface
 from voro3d.pointcloud.tuning import CLOSED_LEVEL, MAX_POISSON_ESCAPE, NOISY, SHELL_DEPTH
 from voro3d.reconstruction import reconstruct
 from voro3d.queries import point_areas

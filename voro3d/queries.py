@@ -459,7 +459,7 @@ def point_winding_number(points, normals, queries, *, areas=None) -> np.ndarray:
 
     Barnes-Hut over a kd-tree with a second-order expansion, as libigl's ``fast_winding_number``,
     but compiled here (``voro3d._fitkernel``): libigl's octree keeps every cell's point indices,
-    so :func:`~voro3d.pointcloud.surface.winding_level` on 10^6 bunny points (40k queries) took
+    so :func:`~voro3d.pointcloud.sides.winding_level` on 10^6 bunny points (40k queries) took
     53 s and 14.5 GB with it, 1.4 s and about 0.1 GB here. Errors against the exact sum, 50k
     bunny points: at most 0.0046 at random queries in the box (libigl 0.0037), 0.012 at queries
     a hundredth of the diagonal off the surface (libigl 0.29), 0.008 at the points (libigl 0.51).

@@ -56,7 +56,7 @@ the points define (``voro3d/pointcloud/``):
    et al. 2018) just behind and in front of them reads about 0.5 for a cloud that encloses a
    volume, about 0 for an open, one-sided scan, and 1.5 on the wall of a cavity whose normals
    the bending rule turned out of it (a hollow ball's inner sphere), which are turned back
-   (``surface.cavity_walls``). When the noise exceeds 0.13 of the spacing
+   (``sides.cavity_walls``). When the noise exceeds 0.13 of the spacing
    (measured over 8 neighbours about a quadric, so that curvature does not count), robust IMLS
    (Kolluri 2008 with RIMLS residual weights, Öztireli et al. 2009) first smooths their normals (a
    pass over the normals alone, then one that moves the points onto their smooth surface; moving

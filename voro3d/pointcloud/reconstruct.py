@@ -27,13 +27,16 @@ from .scanlines import thin_lines
 from .poisson import poisson_depth, poisson_helper
 from .resolution import choose_grid, fit_band, refine_levels, target_samples
 from .plan import as_plan, CloudPlan, settle_denoise, settle_filter, settle_hull, settle_normals
-from .surface import cavity_walls, imls, probe_windings, winding_level
+from .sides import outward_normals
+from .surface import imls
 from .debris import drop_stray_cells
 from .hull import cropped_rim, reach_past_hull
 from .targets import build_target, check_coverage
 from .tiles import ENGINES, analysis_subset, fit_in_tiles
-from .tuning import (CLOUD_STEPS, CLOUD_BOUNDARY_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING, TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS,
-                     MIN_NORMAL_AGREEMENT, MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT, MAX_FIELD_RESOLUTION)
+from .tuning import (CLOUD_STEPS, CLOUD_BOUNDARY_STEPS, CLOUD_REFRESH_VOXELS, WIDTH_PER_SPACING,
+                     TRUSTED_WIDTH_PER_SPACING, WIDTH_PER_NOISE, MAX_TRUSTED_OUTLIERS, MIN_NORMAL_AGREEMENT,
+                     MAX_SIGN_DISAGREEMENT, NOISY, DENSE_SPACINGS, MAX_TARGET_GRID, CLOSED_LEVEL, FIELD_REFINEMENT,
+                     MAX_FIELD_RESOLUTION)
 
 __all__ = ["PointCloudInfo", "SnapTarget", "reconstruct_points", "cloud_mesh"]
 
@@ -61,7 +64,7 @@ class PointCloudInfo:
         pointed inward; ``"estimated (...)"`` when over ``REPAIRABLE_SHARE`` of the given ones were
         unusable (``plan.normals`` ``"check"``; ``"trust"`` refuses them).
     level : float
-        Winding level of the oriented points (:func:`~voro3d.pointcloud.surface.winding_level`,
+        Winding level of the oriented points (:func:`~voro3d.pointcloud.sides.winding_level`,
         clipped to 0-0.5): over ``CLOSED_LEVEL`` they enclose a volume.
     plan : CloudPlan
         The plan as it ran, every choice settled (:mod:`~voro3d.pointcloud.plan`); read from it:
@@ -157,7 +160,8 @@ def reconstruct_points(points, normals=None, *, grid="auto", method: str = "fit"
        Normals: the given ones, checked (zero, NaN or inf ones taken from their neighbours,
        :func:`~voro3d.pointcloud.normals.repair_normals`; signs inconsistent between neighbours: re-oriented,
        :func:`~voro3d.pointcloud.normals.orient_normals`; all inward: flipped), else estimated
-       and oriented (:func:`estimate_normals`).
+       and oriented (:func:`estimate_normals`); a cavity's wall facing into the cavity is turned
+       back (:func:`~voro3d.pointcloud.sides.outward_normals`).
     3. On a noisy cloud (``plan.denoise``), IMLS (its kernel spans several noise deviations)
        smooths the normals (a second pass where they mostly agree, ``MIN_NORMAL_AGREEMENT``), then
        moves the points onto the smooth surface and replaces their normals with the field's.
@@ -320,7 +324,8 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     sides = normals if normal_source == "given" else None
     stats = cloud_stats(framed, tree=tree, neighbours=neighbours, normals=sides)
     if not stats.median_spacing > 1e-9:
-        raise ValueError("most points are duplicated (their neighbours sit at the same position): no surface can be fitted to them")
+        raise ValueError("most points are duplicated (their neighbours sit at the same position): no surface can be "
+                         "fitted to them")
     noisy = stats.fine_noise > NOISY * stats.median_spacing
     fill = fill_ratio(framed, stats.median_spacing)
     # Points spread through a volume have no plane at the spacing's scale (they read as noisy: 0.31-0.32
@@ -366,17 +371,10 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     widths = np.maximum(per_spacing * stats.spacing, WIDTH_PER_NOISE * stats.noise)
     areas = point_areas(framed, tree=tree, distances=None if neighbours is None else neighbours[0],
                         indices=None if neighbours is None else neighbours[1], normals=sides)
-    width = float(np.median(widths))
-    windings = probe_windings(framed, normals, areas, width)
-    level = winding_level(framed, normals, areas, width, windings=windings)
+    normals, level, flipped, turned = outward_normals(framed, normals, areas, float(np.median(widths)),
+                                                      turn=normal_plan != "trust")
     neighbours = None  # 21 neighbours a point: not kept through the fit
-    if level < -CLOSED_LEVEL and normal_plan != "trust":
-        # Consistent normals of a closed surface that all point inward (the global sign of a
-        # tangent-plane orientation is arbitrary): the winding number reads -1 inside.
-        normals, level, windings = -normals, -level, -windings
-        normal_source += ", flipped"
-    cavity = cavity_walls(framed, normals, areas, width, windings=windings) & (normal_plan != "trust")  # given normals stand
-    normals[cavity] *= -1.0
+    normal_source += ", flipped" if flipped else ""
     level = min(max(level, 0.0), 0.5)
     closed = level > CLOSED_LEVEL
     cropped = not closed and plan.hull != "on" and cropped_rim(framed, normals, tree=tree)
@@ -409,7 +407,7 @@ def _reconstruct_points(points, normals, *, grid, method, steps, seed, device, m
     reach = (f"; its closure reaches {past / 2:.0%} of the diagonal past the points' convex hull (plan hull on cuts "
              f"it back{flat}: scans from a few viewpoints)" if past else "")
     notes = ([why] if why else []) + getattr(target, "carves", [])
-    notes += [f"{int(cavity.sum()):,} normals on a cavity's wall turned inward"] if cavity.any() else []
+    notes += [f"{turned:,} normals on a cavity's wall turned inward"] if turned else []
     report_phase(progress, "target", f"{kind}{f' depth {depth}' if kind == 'poisson' else ''}{''.join(', ' + note for note in notes)}"
                  f"{' (flipped normals)' if normal_source.endswith('flipped') else ''}, "
                  f"{'closed' if closed else 'open'} (winding level {level:.2f}); plan: {plan}{reach}", seconds["surface"])

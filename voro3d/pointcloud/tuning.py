@@ -139,7 +139,7 @@ HOLE_VOXELS = 1.0
 # 14 and 46 cells against 5,725 exterior ones, cavities a voxel under its top: 3 pieces, 1 with the rule (bubbles of
 # at most 8 cells only before it); no other of the 144 benchmark outputs had more pieces than its cloud has islands.
 STRAY_CELL_SHARE = 0.02
-# Winding number level (:func:`~voro3d.pointcloud.surface.winding_level`) above which the points enclose a volume (0.5
+# Winding number level (:func:`~voro3d.pointcloud.sides.winding_level`) above which the points enclose a volume (0.5
 # closed, about 0 for a one-sided scan): their target is screened Poisson. Ablation, range scans of 12 dev meshes
 # (bench_pointcloud, grid 64): every cloud taken as closed (this level at -1) gave CD 6,500-10,700 on 10 of the 12
 # one-view scans and 7 of the 12 three-view ones (Poisson ran off, and IMLS then lacked the one-sided scans' smoothing
